@@ -1,0 +1,1 @@
+//! Workspace-level benchmarks live in `benches/`; per-crate benches live in each crate.

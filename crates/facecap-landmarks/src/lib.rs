@@ -1,0 +1,1 @@
+//! facecap-landmarks (see crate docs).

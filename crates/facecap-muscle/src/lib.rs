@@ -1,0 +1,1 @@
+//! facecap-muscle (see crate docs).

@@ -1,0 +1,1 @@
+//! facecap-solve (see crate docs).

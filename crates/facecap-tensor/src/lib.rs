@@ -1,0 +1,1 @@
+//! facecap-tensor (see crate docs).
