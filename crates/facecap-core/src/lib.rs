@@ -27,3 +27,5 @@ pub mod error;
 pub mod landmarks;
 
 pub use error::{Error, Result};
+pub mod camera;
+pub mod mesh;
