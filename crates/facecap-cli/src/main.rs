@@ -1,10 +1,21 @@
-//! `facecap` command-line tool.
+//! `facecap` command-line tool: composes the facecap crates.
+//!
+//! Each subcommand lives in its own module with its `clap::Args` struct and a
+//! `run` function; `main` only dispatches.
 
 use clap::{Parser, Subcommand};
 
+mod cmd_capture;
+mod cmd_info;
+mod cmd_landmarks;
+mod cmd_muscle;
+mod cmd_solve;
+mod cmd_synth;
+mod cmd_tensor;
+
 /// Markerless facial performance capture from monocular video.
 #[derive(Debug, Parser)]
-#[command(name = "facecap", version, about)]
+#[command(name = "facecap", version, about, long_about = None)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -13,17 +24,42 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Decode a whole video and print frames decoded, resolution, fps, duration and codec.
-    Info {
-        /// Video file, Y4M file or folder of images.
-        video: std::path::PathBuf,
-    },
+    Info(cmd_info::Args),
+    /// 68 landmarks for images (one .pts per face) or a video (landmarks.csv).
+    Landmarks(cmd_landmarks::Args),
+    /// Solve blendshape weights from a landmarks CSV against a rig.
+    Solve(cmd_solve::Args),
+    /// Muscle model: track contractions from video, bake muscle blendshapes.
+    #[command(subcommand)]
+    Muscle(cmd_muscle::Command),
+    /// Tensor face model: build, generate, fit.
+    #[command(subcommand)]
+    Tensor(cmd_tensor::Command),
+    /// Transfer expressions from a source video onto a target.
+    Transfer(cmd_tensor::TransferArgs),
+    /// One command from video to landmarks, pose, weights, meshes and a report.
+    Capture(cmd_capture::Args),
+    /// Make a synthetic ground-truth video from a real face photo.
+    Synth(cmd_synth::Args),
 }
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    match cli.command {
-        Command::Info { video } => {
-            anyhow::bail!("info not implemented yet for {}", video.display())
+    let result = match cli.command {
+        Command::Info(a) => cmd_info::run(a),
+        Command::Landmarks(a) => cmd_landmarks::run(a),
+        Command::Solve(a) => cmd_solve::run(a),
+        Command::Muscle(c) => cmd_muscle::run(c),
+        Command::Tensor(c) => cmd_tensor::run(c),
+        Command::Transfer(a) => cmd_tensor::run_transfer(a),
+        Command::Capture(a) => cmd_capture::run(a),
+        Command::Synth(a) => cmd_synth::run(a),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
         }
     }
 }

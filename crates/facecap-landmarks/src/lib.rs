@@ -1,1 +1,9 @@
-//! facecap-landmarks (see crate docs).
+//! # facecap-landmarks
+//!
+//! Face detection, 68-point landmark inference with dlib-compatible ensembles of
+//! regression trees (Kazemi & Sullivan 2014), pyramidal Lucas-Kanade optical flow
+//! (Bouguet 2001) and a video landmark tracker combining them.
+
+pub mod error;
+
+pub use error::{Error, Result};
