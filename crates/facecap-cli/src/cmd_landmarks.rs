@@ -11,5 +11,8 @@ pub struct Args {
 
 /// Runs `facecap landmarks`.
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
-    anyhow::bail!("facecap landmarks is not implemented yet ({} inputs)", args.inputs.len())
+    anyhow::bail!(
+        "facecap landmarks is not implemented yet ({} inputs)",
+        args.inputs.len()
+    )
 }

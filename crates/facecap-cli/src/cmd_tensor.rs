@@ -31,5 +31,9 @@ pub fn run(cmd: Command) -> anyhow::Result<std::process::ExitCode> {
 
 /// Runs `facecap transfer`.
 pub fn run_transfer(args: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
-    anyhow::bail!("facecap transfer is not implemented yet ({} -> {})", args.source.display(), args.target.display())
+    anyhow::bail!(
+        "facecap transfer is not implemented yet ({} -> {})",
+        args.source.display(),
+        args.target.display()
+    )
 }

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 mod cmd_capture;
 mod cmd_info;
 mod cmd_landmarks;
+mod cmd_landmarks_video;
 mod cmd_muscle;
 mod cmd_solve;
 mod cmd_synth;

@@ -55,7 +55,10 @@ impl Intrinsics {
         if p.z <= 0.0 {
             return None;
         }
-        Some(Point2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
+        Some(Point2::new(
+            self.fx * p.x / p.z + self.cx,
+            self.fy * p.y / p.z + self.cy,
+        ))
     }
 }
 
@@ -71,7 +74,10 @@ impl ModelToCamera {
 
     /// From a rotation vector (axis * angle, radians) and a translation.
     pub fn from_rvec_tvec(rvec: Vector3<f64>, tvec: Vector3<f64>) -> Self {
-        ModelToCamera(Isometry3::from_parts(Translation3::from(tvec), UnitQuaternion::from_scaled_axis(rvec)))
+        ModelToCamera(Isometry3::from_parts(
+            Translation3::from(tvec),
+            UnitQuaternion::from_scaled_axis(rvec),
+        ))
     }
 
     /// Rotation vector (axis * angle, radians), OpenFace/OpenCV style.

@@ -80,17 +80,28 @@ pub enum Error {
 impl Error {
     /// Wraps an I/O error with the path it happened on.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Error::Io { path: path.into(), source }
+        Error::Io {
+            path: path.into(),
+            source,
+        }
     }
 
     /// Builds a [`Error::Parse`].
     pub fn parse(format: &'static str, path: impl Into<PathBuf>, reason: impl Into<String>) -> Self {
-        Error::Parse { format, path: path.into(), reason: reason.into() }
+        Error::Parse {
+            format,
+            path: path.into(),
+            reason: reason.into(),
+        }
     }
 
     /// Builds a [`Error::InvalidParameter`].
     pub fn invalid(name: &'static str, value: impl ToString, expected: impl Into<String>) -> Self {
-        Error::InvalidParameter { name, value: value.to_string(), expected: expected.into() }
+        Error::InvalidParameter {
+            name,
+            value: value.to_string(),
+            expected: expected.into(),
+        }
     }
 }
 

@@ -93,7 +93,12 @@ pub struct Rect {
 impl Rect {
     /// Creates a box, rejecting non-finite values and non-positive sizes.
     pub fn new(left: f64, top: f64, width: f64, height: f64) -> Result<Self> {
-        for (name, v) in [("rect.left", left), ("rect.top", top), ("rect.width", width), ("rect.height", height)] {
+        for (name, v) in [
+            ("rect.left", left),
+            ("rect.top", top),
+            ("rect.width", width),
+            ("rect.height", height),
+        ] {
             crate::error::ensure_finite(name, v)?;
         }
         if width <= 0.0 {
@@ -102,7 +107,12 @@ impl Rect {
         if height <= 0.0 {
             return Err(Error::invalid("rect.height", height, "> 0"));
         }
-        Ok(Rect { left, top, width, height })
+        Ok(Rect {
+            left,
+            top,
+            width,
+            height,
+        })
     }
 
     /// From dlib's inclusive integer rectangle `(left, top, right, bottom)`.
@@ -163,7 +173,9 @@ pub struct Landmarks68 {
 
 impl Default for Landmarks68 {
     fn default() -> Self {
-        Landmarks68 { points: [Point2::origin(); NUM_LANDMARKS] }
+        Landmarks68 {
+            points: [Point2::origin(); NUM_LANDMARKS],
+        }
     }
 }
 
@@ -191,7 +203,11 @@ impl Landmarks68 {
         let mut out = Landmarks68::default();
         for (i, &(x, y)) in xy.iter().enumerate() {
             if !x.is_finite() || !y.is_finite() {
-                return Err(Error::invalid("landmark coordinate", format!("point {i} = ({x}, {y})"), "finite numbers"));
+                return Err(Error::invalid(
+                    "landmark coordinate",
+                    format!("point {i} = ({x}, {y})"),
+                    "finite numbers",
+                ));
             }
             out.points[i] = Point2::new(x, y);
         }
@@ -226,7 +242,12 @@ impl Landmarks68 {
             x1 = x1.max(p.x);
             y1 = y1.max(p.y);
         }
-        Rect { left: x0, top: y0, width: (x1 - x0).max(1.0), height: (y1 - y0).max(1.0) }
+        Rect {
+            left: x0,
+            top: y0,
+            width: (x1 - x0).max(1.0),
+            height: (y1 - y0).max(1.0),
+        }
     }
 
     /// True when every coordinate is finite.

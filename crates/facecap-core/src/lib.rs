@@ -28,4 +28,6 @@ pub mod landmarks;
 
 pub use error::{Error, Result};
 pub mod camera;
+pub mod landmark_map;
 pub mod mesh;
+pub mod paths;

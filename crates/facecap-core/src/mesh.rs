@@ -49,20 +49,40 @@ impl Mesh {
     pub fn validate(&self) -> Result<()> {
         let n = self.positions.len();
         if !self.normals.is_empty() && self.normals.len() != n {
-            return Err(Error::DimensionMismatch { what: "normal count".into(), expected: n, got: self.normals.len() });
+            return Err(Error::DimensionMismatch {
+                what: "normal count".into(),
+                expected: n,
+                got: self.normals.len(),
+            });
         }
         if !self.uvs.is_empty() && self.uvs.len() != n {
-            return Err(Error::DimensionMismatch { what: "uv count".into(), expected: n, got: self.uvs.len() });
+            return Err(Error::DimensionMismatch {
+                what: "uv count".into(),
+                expected: n,
+                got: self.uvs.len(),
+            });
         }
         for (t, tri) in self.triangles.iter().enumerate() {
             for &i in tri {
                 if i as usize >= n {
-                    return Err(Error::invalid("triangle index", format!("triangle {t} vertex {i}"), format!("< {n}")));
+                    return Err(Error::invalid(
+                        "triangle index",
+                        format!("triangle {t} vertex {i}"),
+                        format!("< {n}"),
+                    ));
                 }
             }
         }
-        if let Some(i) = self.positions.iter().position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite())) {
-            return Err(Error::invalid("vertex position", format!("vertex {i}"), "finite coordinates"));
+        if let Some(i) = self
+            .positions
+            .iter()
+            .position(|p| !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()))
+        {
+            return Err(Error::invalid(
+                "vertex position",
+                format!("vertex {i}"),
+                "finite coordinates",
+            ));
         }
         Ok(())
     }

@@ -1,0 +1,1 @@
+//! Video mode of `facecap landmarks` (tracker): `facecap landmarks VIDEO --out DIR`.
