@@ -31,3 +31,4 @@ pub mod camera;
 pub mod landmark_map;
 pub mod mesh;
 pub mod paths;
+pub mod atomic;
