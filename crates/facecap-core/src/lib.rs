@@ -27,8 +27,14 @@ pub mod error;
 pub mod landmarks;
 
 pub use error::{Error, Result};
+pub mod align;
+pub mod atomic;
+pub mod bridge;
 pub mod camera;
 pub mod landmark_map;
 pub mod mesh;
 pub mod paths;
-pub mod atomic;
+pub mod pnp;
+pub mod gltf_io;
+pub mod image_io;
+pub mod video;
