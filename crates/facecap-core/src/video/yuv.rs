@@ -1,0 +1,176 @@
+//! Y'CbCr helpers shared by the ffmpeg and Y4M sources: luma range expansion and
+//! Y'CbCr -> RGB conversion.
+//!
+//! Conversion (ITU-R BT.601 / BT.709, Poynton "Digital Video and HD", ch. 25-26):
+//!
+//! ```text
+//! limited ("tv") range:  Y' = (Y - 16) * 255/219,   Cb' = (Cb - 128) * 255/224,   Cr' likewise
+//! full ("pc") range:     Y' = Y,                    Cb' = Cb - 128,               Cr' likewise
+//! R = Y' + 2 (1 - Kr) Cr'
+//! G = Y' - 2 Kb (1 - Kb) / Kg * Cb' - 2 Kr (1 - Kr) / Kg * Cr'
+//! B = Y' + 2 (1 - Kb) Cb'
+//! BT.601: Kr = 0.299, Kb = 0.114;  BT.709: Kr = 0.2126, Kb = 0.0722;  Kg = 1 - Kr - Kb
+//! ```
+//!
+//! evaluated in 16.16 fixed point and rounded, then clamped to 0..=255 (the clamp is
+//! the definition of the conversion for out-of-gamut codes, not a silent fix-up).
+//! Chroma planes subsampled by (sx, sy) are sampled nearest (the chroma sample whose
+//! block covers the pixel); for 4:4:4 input that is exact.
+
+use image::{GrayImage, RgbImage};
+
+/// Which Y'CbCr matrix a stream uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ColorMatrix {
+    /// ITU-R BT.601 (SD video, JPEG, and the default when a stream says nothing).
+    #[default]
+    Bt601,
+    /// ITU-R BT.709 (HD video).
+    Bt709,
+}
+
+/// Whether 8-bit codes use the limited ("tv", 16..235 / 16..240) or full ("pc", 0..255) range.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ColorRange {
+    /// 16..=235 luma, 16..=240 chroma (almost all camera and web video).
+    #[default]
+    Limited,
+    /// 0..=255 (JPEG, `yuvj*` formats).
+    Full,
+}
+
+const FIX_SHIFT: u32 = 16;
+const FIX_ONE: f64 = (1u32 << FIX_SHIFT) as f64;
+const FIX_HALF: i32 = 1 << (FIX_SHIFT - 1);
+
+/// Lookup table mapping limited-range luma codes to full range:
+/// `round((y - 16) * 255 / 219)` clamped to 0..=255.
+pub fn limited_to_full_luma_lut() -> [u8; 256] {
+    let mut lut = [0u8; 256];
+    for (y, v) in lut.iter_mut().enumerate() {
+        let f = ((y as f64 - 16.0) * 255.0 / 219.0).round();
+        *v = f.clamp(0.0, 255.0) as u8;
+    }
+    lut
+}
+
+/// Applies a 256-entry lookup table to every pixel in place.
+pub fn apply_lut(img: &mut GrayImage, lut: &[u8; 256]) {
+    for p in img.as_mut().iter_mut() {
+        *p = lut[usize::from(*p)];
+    }
+}
+
+/// Fixed-point Y'CbCr -> RGB converter for one matrix and range.
+#[derive(Debug, Clone, Copy)]
+pub struct YuvToRgb {
+    y_off: i32,
+    y_mul: i32,
+    r_cr: i32,
+    g_cb: i32,
+    g_cr: i32,
+    b_cb: i32,
+}
+
+impl YuvToRgb {
+    /// Precomputes the coefficients.
+    pub fn new(matrix: ColorMatrix, range: ColorRange) -> Self {
+        let (kr, kb) = match matrix {
+            ColorMatrix::Bt601 => (0.299, 0.114),
+            ColorMatrix::Bt709 => (0.2126, 0.0722),
+        };
+        let kg = 1.0 - kr - kb;
+        let (y_off, y_scale, c_scale) = match range {
+            ColorRange::Limited => (16, 255.0 / 219.0, 255.0 / 224.0),
+            ColorRange::Full => (0, 1.0, 1.0),
+        };
+        let fx = |v: f64| (v * FIX_ONE).round() as i32;
+        YuvToRgb {
+            y_off,
+            y_mul: fx(y_scale),
+            r_cr: fx(2.0 * (1.0 - kr) * c_scale),
+            g_cb: fx(2.0 * kb * (1.0 - kb) / kg * c_scale),
+            g_cr: fx(2.0 * kr * (1.0 - kr) / kg * c_scale),
+            b_cb: fx(2.0 * (1.0 - kb) * c_scale),
+        }
+    }
+
+    /// Converts one pixel.
+    #[inline]
+    pub fn pixel(&self, y: u8, cb: u8, cr: u8) -> [u8; 3] {
+        let yy = (i32::from(y) - self.y_off) * self.y_mul + FIX_HALF;
+        let cb = i32::from(cb) - 128;
+        let cr = i32::from(cr) - 128;
+        let clamp = |v: i32| (v >> FIX_SHIFT).clamp(0, 255) as u8;
+        [
+            clamp(yy + self.r_cr * cr),
+            clamp(yy - self.g_cb * cb - self.g_cr * cr),
+            clamp(yy + self.b_cb * cb),
+        ]
+    }
+
+    /// Converts planar Y'CbCr to RGB. `y` is `width*height`; `cb`/`cr` are
+    /// `ceil(width/sx) * ceil(height/sy)` with row stride `ceil(width/sx)`.
+    /// `out` is resized only when its size differs.
+    #[allow(clippy::too_many_arguments)]
+    pub fn convert_into(
+        &self,
+        y: &[u8],
+        cb: &[u8],
+        cr: &[u8],
+        width: u32,
+        height: u32,
+        sx: u32,
+        sy: u32,
+        out: &mut RgbImage,
+    ) {
+        if out.dimensions() != (width, height) {
+            *out = RgbImage::new(width, height);
+        }
+        let w = width as usize;
+        let cw = width.div_ceil(sx) as usize;
+        let (sx, sy) = (sx as usize, sy as usize);
+        debug_assert_eq!(y.len(), w * height as usize);
+        let out = out.as_mut();
+        for (row, (yrow, orow)) in y.chunks_exact(w).zip(out.chunks_exact_mut(3 * w)).enumerate() {
+            let crow = (row / sy) * cw;
+            for (col, (yv, o)) in yrow.iter().zip(orow.chunks_exact_mut(3)).enumerate() {
+                let ci = crow + col / sx;
+                o.copy_from_slice(&self.pixel(*yv, cb[ci], cr[ci]));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limited_range_black_white_grey() {
+        let c = YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Limited);
+        assert_eq!(c.pixel(16, 128, 128), [0, 0, 0]);
+        assert_eq!(c.pixel(235, 128, 128), [255, 255, 255]);
+        assert_eq!(c.pixel(126, 128, 128), [128, 128, 128]);
+        let f = YuvToRgb::new(ColorMatrix::Bt709, ColorRange::Full);
+        assert_eq!(f.pixel(77, 128, 128), [77, 77, 77]);
+    }
+
+    #[test]
+    fn primaries_round_trip_bt601() {
+        // Limited-range BT.601 red: Y=81, Cb=90, Cr=240.
+        let c = YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Limited);
+        let [r, g, b] = c.pixel(81, 90, 240);
+        assert!(r >= 253 && g <= 2 && b <= 2, "{r} {g} {b}");
+    }
+
+    #[test]
+    fn lut_endpoints() {
+        let l = limited_to_full_luma_lut();
+        assert_eq!(l[0], 0);
+        assert_eq!(l[16], 0);
+        assert_eq!(l[235], 255);
+        assert_eq!(l[255], 255);
+        assert_eq!(l[126], 128);
+    }
+}
