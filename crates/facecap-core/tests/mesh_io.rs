@@ -1,0 +1,335 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+//! Mesh I/O: glTF/GLB and OBJ readers and writers, on synthetic meshes (always run),
+//! the shared 3D models (skipped when absent) and the Khronos glTF validator
+//! (skipped when node/npm are missing).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use facecap_core::gltf_io::{
+    glb_to_vec, read_morph_file, read_morph_mesh, read_morph_mesh_from_slice, write_glb, write_gltf, write_morph_file,
+    MorphAnimation,
+};
+use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
+use facecap_core::paths::shared_data_file;
+use facecap_core::Error;
+use nalgebra::{Point3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A seeded `nx` x `ny` grid with normals, UVs and `k` random morph targets.
+fn synthetic_rig(nx: usize, ny: usize, k: usize, seed: u64) -> MorphMesh {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut base = Mesh::default();
+    for j in 0..ny {
+        for i in 0..nx {
+            let z: f32 = rng.random_range(-0.3..0.3);
+            base.positions.push(Point3::new(i as f32, j as f32, z));
+            base.uvs.push([i as f32 / (nx - 1) as f32, j as f32 / (ny - 1) as f32]);
+        }
+    }
+    for j in 0..ny - 1 {
+        for i in 0..nx - 1 {
+            let a = (j * nx + i) as u32;
+            let b = a + 1;
+            let c = a + nx as u32;
+            let d = c + 1;
+            base.triangles.push([a, b, d]);
+            base.triangles.push([a, d, c]);
+        }
+    }
+    base.compute_normals();
+    let n = base.positions.len();
+    let targets = (0..k)
+        .map(|t| MorphTarget {
+            name: format!("shape{t}_{}", ["jawOpen", "browUp_L", "smile"][t % 3]),
+            deltas: (0..n)
+                .map(|_| {
+                    Vector3::new(
+                        rng.random_range(-0.5..0.5),
+                        rng.random_range(-0.5..0.5),
+                        rng.random_range(-0.5..0.5),
+                    )
+                })
+                .collect(),
+        })
+        .collect();
+    MorphMesh { base, targets }
+}
+
+fn synthetic_animation(frames: usize, k: usize, fps: f32, seed: u64) -> MorphAnimation {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    MorphAnimation {
+        times_s: (0..frames).map(|f| f as f32 / fps).collect(),
+        weights: (0..frames)
+            .map(|_| (0..k).map(|_| rng.random_range(0.0..1.0)).collect())
+            .collect(),
+    }
+}
+
+fn assert_same_mesh(a: &MorphMesh, b: &MorphMesh) {
+    assert_eq!(a.base.positions, b.base.positions);
+    assert_eq!(a.base.triangles, b.base.triangles);
+    assert_eq!(a.base.uvs, b.base.uvs);
+    assert_eq!(a.base.normals.len(), b.base.normals.len());
+    for (x, y) in a.base.normals.iter().zip(&b.base.normals) {
+        assert!((x - y).norm() < 1e-6, "{x:?} vs {y:?}");
+    }
+    assert_eq!(a.target_names(), b.target_names());
+    for (x, y) in a.targets.iter().zip(&b.targets) {
+        assert_eq!(x.deltas, y.deltas);
+    }
+}
+
+/// Runs `scripts/validate_gltf.sh` on `files`; `false` (with a SKIP line) when
+/// node/npm or the validator package are unavailable, panics when the validator
+/// reports errors.
+fn khronos_validate(test: &str, files: &[&Path]) -> bool {
+    let have = |tool: &str| {
+        Command::new(tool)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if !have("node") || !have("npm") {
+        eprintln!("SKIP: {test}: node/npm not installed, Khronos glTF validator not run");
+        return false;
+    }
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/validate_gltf.sh");
+    let out = Command::new("bash").arg(&script).args(files).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{stdout}{stderr}");
+    match out.status.code() {
+        Some(0) => true,
+        Some(2) => {
+            eprintln!("SKIP: {test}: glTF validator could not be installed or run: {stderr}");
+            false
+        }
+        _ => panic!("Khronos glTF validator reported errors:\n{stdout}\n{stderr}"),
+    }
+}
+
+#[test]
+fn glb_and_gltf_round_trip_and_pass_khronos_validator() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = synthetic_rig(7, 6, 5, 11);
+    let anim = synthetic_animation(45, 5, 30.0, 12);
+    let glb = dir.path().join("rig.glb");
+    let gltf = dir.path().join("rig.gltf");
+    let still = dir.path().join("still.glb");
+    write_glb(&glb, &rig, Some(&anim)).unwrap();
+    write_gltf(&gltf, &rig, Some(&anim)).unwrap();
+    write_morph_file(&still, &rig, None).unwrap();
+
+    for p in [&glb, &gltf] {
+        let (back, back_anim) = read_morph_file(p).unwrap();
+        assert_same_mesh(&rig, &back);
+        assert_eq!(back_anim.as_ref(), Some(&anim), "{}", p.display());
+    }
+    let (back, none) = read_morph_file(&still).unwrap();
+    assert_same_mesh(&rig, &back);
+    assert!(none.is_none());
+    // Only the three outputs remain in the folder (no temporary files).
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
+
+    khronos_validate(
+        "glb_and_gltf_round_trip_and_pass_khronos_validator",
+        &[&glb, &gltf, &still],
+    );
+}
+
+#[test]
+fn mesh_without_normals_uvs_or_targets_round_trips() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut rig = synthetic_rig(3, 3, 0, 5);
+    rig.base.normals.clear();
+    rig.base.uvs.clear();
+    let p = dir.path().join("plain.glb");
+    write_glb(&p, &rig, None).unwrap();
+    let back = read_morph_mesh(&p).unwrap();
+    assert_same_mesh(&rig, &back);
+    // An animation needs morph targets.
+    let anim = synthetic_animation(3, 0, 30.0, 1);
+    assert!(write_glb(dir.path().join("x.glb"), &rig, Some(&anim)).is_err());
+    assert!(!dir.path().join("x.glb").exists());
+}
+
+#[test]
+fn invalid_animations_and_meshes_are_rejected_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = synthetic_rig(3, 3, 2, 3);
+    let p = dir.path().join("bad.glb");
+    let good = synthetic_animation(4, 2, 25.0, 3);
+    let mut cases: Vec<MorphAnimation> = Vec::new();
+    let mut a = good.clone();
+    a.times_s[2] = a.times_s[1];
+    cases.push(a);
+    let mut a = good.clone();
+    a.times_s[3] = f32::NAN;
+    cases.push(a);
+    let mut a = good.clone();
+    a.times_s[0] = -1.0;
+    cases.push(a);
+    let mut a = good.clone();
+    a.weights[1][0] = f32::INFINITY;
+    cases.push(a);
+    let mut a = good.clone();
+    a.weights[1].push(0.0);
+    cases.push(a);
+    let mut a = good.clone();
+    a.weights.pop();
+    cases.push(a);
+    cases.push(MorphAnimation::default());
+    for (i, c) in cases.iter().enumerate() {
+        let r = write_glb(&p, &rig, Some(c));
+        assert!(
+            matches!(r, Err(Error::InvalidParameter { .. } | Error::DimensionMismatch { .. })),
+            "case {i}: {r:?}"
+        );
+        assert!(!p.exists());
+    }
+    let mut bad = rig.clone();
+    bad.base.triangles.push([0, 1, 99]);
+    assert!(write_glb(&p, &bad, None).is_err());
+    let mut bad = rig.clone();
+    bad.targets[0].deltas.pop();
+    assert!(write_glb(&p, &bad, None).is_err());
+    let mut bad = rig.clone();
+    bad.base.normals[0].x = f32::NAN;
+    assert!(write_glb(&p, &bad, None).is_err());
+    assert!(write_morph_file(dir.path().join("x.obj"), &rig, None).is_err());
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+#[test]
+fn truncated_and_corrupted_glb_never_panics() {
+    let rig = synthetic_rig(3, 2, 2, 9);
+    let anim = synthetic_animation(3, 2, 30.0, 9);
+    let bytes = glb_to_vec(&rig, Some(&anim)).unwrap();
+    assert!(read_morph_mesh_from_slice(&bytes, None).is_ok());
+    for len in 0..bytes.len() {
+        let r = read_morph_mesh_from_slice(&bytes[..len], None);
+        assert!(r.is_err(), "truncation to {len} of {} bytes accepted", bytes.len());
+    }
+    // Seeded random byte corruption: Ok or Err, never a panic.
+    // Half of the edits hit the JSON chunk (bytes 20..20+json_len), with printable bytes.
+    let json_len = u32::from_le_bytes([bytes[12], bytes[13], bytes[14], bytes[15]]) as usize;
+    let mut rng = ChaCha8Rng::seed_from_u64(77);
+    for _ in 0..3000 {
+        let mut b = bytes.clone();
+        for _ in 0..rng.random_range(1..4) {
+            if rng.random_bool(0.5) {
+                let i = rng.random_range(20..20 + json_len);
+                const PRINTABLE: &[u8] = b"0123456789,:[]{}-eE.9 ";
+                b[i] = PRINTABLE[rng.random_range(0..PRINTABLE.len())];
+            } else {
+                let i = rng.random_range(0..b.len());
+                b[i] = rng.random();
+            }
+        }
+        let _ = read_morph_file_from_slice_ok(&b);
+    }
+}
+
+fn read_morph_file_from_slice_ok(b: &[u8]) -> bool {
+    facecap_core::gltf_io::read_morph_file_from_slice(b, None).is_ok()
+}
+
+#[test]
+fn malformed_gltf_json_is_a_parse_error() {
+    let cases = [
+        r#"{"asset":{"version":"2.0"}}"#.to_string(),
+        r#"{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{}}]}]}"#.to_string(),
+        r#"not json"#.to_string(),
+        // accessor beyond its buffer view
+        r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":12,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAA"}],
+           "bufferViews":[{"buffer":0,"byteLength":12}],
+           "accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3"}],
+           "meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#
+            .to_string(),
+        // POSITION of the wrong type
+        r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":12,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAA"}],
+           "bufferViews":[{"buffer":0,"byteLength":12}],
+           "accessors":[{"bufferView":0,"componentType":5126,"count":1,"type":"VEC2"}],
+           "meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#
+            .to_string(),
+        // wrong number of target names
+        r#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":36,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAA"}],
+           "bufferViews":[{"buffer":0,"byteLength":36}],
+           "accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}],
+           "meshes":[{"extras":{"targetNames":["a","b"]},"primitives":[{"attributes":{"POSITION":0},"targets":[{"POSITION":0}]}]}]}"#
+            .to_string(),
+    ];
+    for (i, c) in cases.iter().enumerate() {
+        let r = read_morph_mesh_from_slice(c.as_bytes(), None);
+        assert!(matches!(r, Err(Error::Parse { .. })), "case {i}: {r:?}");
+    }
+    // The same file with one name is fine and unnamed targets get target_<k>.
+    let ok = cases[5].replace(r#"["a","b"]"#, r#"["a"]"#);
+    let m = read_morph_mesh_from_slice(ok.as_bytes(), None).unwrap();
+    assert_eq!(m.target_names(), vec!["a"]);
+    assert_eq!(m.base.triangles, vec![[0, 1, 2]]);
+    let unnamed = cases[5].replace(r#""extras":{"targetNames":["a","b"]},"#, "");
+    let m = read_morph_mesh_from_slice(unnamed.as_bytes(), None).unwrap();
+    assert_eq!(m.target_names(), vec!["target_0"]);
+
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.glb");
+    assert!(matches!(read_morph_mesh(&missing), Err(Error::Io { .. })));
+}
+
+#[test]
+fn shared_glb_models_read() {
+    let cases: [(&str, usize); 4] = [
+        ("models3d/ict_facekit/ict_face_arkit53.glb", 53),
+        ("models3d/ict_facekit/ict_face_identity100.glb", 100),
+        ("models3d/eos_sfm/sfm_shape63.glb", 63),
+        ("models3d/eos_sfm/sfm_expressions6.glb", 6),
+    ];
+    for (rel, k) in cases {
+        let Some(p) = shared_data_file("shared_glb_models_read", rel) else {
+            continue;
+        };
+        let m = read_morph_mesh(&p).unwrap();
+        assert_eq!(m.targets.len(), k, "{rel}");
+        assert!(m.base.num_vertices() > 1000, "{rel}");
+        assert!(!m.base.triangles.is_empty());
+        m.validate().unwrap();
+        for (i, t) in m.targets.iter().enumerate() {
+            assert!(
+                !t.name.is_empty() && t.name != format!("target_{i}"),
+                "{rel}: unnamed target {i}"
+            );
+        }
+        eprintln!(
+            "{rel}: {} vertices, {} triangles, {} targets, first {:?}",
+            m.base.num_vertices(),
+            m.base.triangles.len(),
+            k,
+            m.targets[0].name
+        );
+    }
+    if let Some(p) = shared_data_file("shared_glb_models_read", "models3d/ict_facekit/ict_face_arkit53.glb") {
+        let m = read_morph_mesh(&p).unwrap();
+        let names = m.target_names();
+        assert!(names.contains(&"jawOpen"), "{names:?}");
+    }
+}
+
+#[test]
+fn ict_rig_with_300_keyframes_is_valid_gltf() {
+    let test = "ict_rig_with_300_keyframes_is_valid_gltf";
+    let Some(p) = shared_data_file(test, "models3d/ict_facekit/ict_face_arkit53.glb") else {
+        return;
+    };
+    let rig = read_morph_mesh(&p).unwrap();
+    let anim = synthetic_animation(300, rig.targets.len(), 30.0, 53);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("ict_anim.glb");
+    write_glb(&out, &rig, Some(&anim)).unwrap();
+    let (back, back_anim) = read_morph_file(&out).unwrap();
+    assert_same_mesh(&rig, &back);
+    assert_eq!(back_anim.unwrap(), anim);
+    khronos_validate(test, &[&out]);
+}
