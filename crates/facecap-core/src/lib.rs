@@ -38,3 +38,4 @@ pub mod pnp;
 pub mod gltf_io;
 pub mod image_io;
 pub mod video;
+pub mod obj;

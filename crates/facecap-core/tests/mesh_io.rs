@@ -333,3 +333,243 @@ fn ict_rig_with_300_keyframes_is_valid_gltf() {
     assert_eq!(back_anim.unwrap(), anim);
     khronos_validate(test, &[&out]);
 }
+
+// ------------------------------------------------------------------ OBJ
+
+use facecap_core::obj::{obj_to_string, parse_obj, read_obj, read_obj_with_sources, write_obj};
+
+/// `v` lines of an OBJ parsed independently (first three numbers).
+fn independent_v_lines(text: &str) -> Vec<[f32; 3]> {
+    text.lines()
+        .filter_map(|l| {
+            let mut f = l.split_whitespace();
+            (f.next() == Some("v")).then(|| {
+                let v: Vec<f32> = f.take(3).map(|x| x.parse().unwrap()).collect();
+                [v[0], v[1], v[2]]
+            })
+        })
+        .collect()
+}
+
+type Corner = ([u32; 3], [u32; 2]);
+
+fn key(p: &[f32], uv: Option<&[f32]>) -> Corner {
+    let uv = uv.map(|t| [t[0].to_bits(), t[1].to_bits()]).unwrap_or([0, 0]);
+    ([p[0].to_bits(), p[1].to_bits(), p[2].to_bits()], uv)
+}
+
+/// Triangles as sorted (position, uv) corner triples, from our reader.
+fn our_corners(m: &Mesh) -> Vec<[Corner; 3]> {
+    let mut v: Vec<[Corner; 3]> = m
+        .triangles
+        .iter()
+        .map(|t| {
+            t.map(|i| {
+                let p = m.positions[i as usize];
+                key(&[p.x, p.y, p.z], m.uvs.get(i as usize).map(|u| &u[..]))
+            })
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// The same from tobj (the reference reader; single-index mode aligns attributes).
+fn tobj_corners(path: &Path) -> Vec<[Corner; 3]> {
+    let opts = tobj::LoadOptions {
+        single_index: true,
+        triangulate: true,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let (models, _materials) = tobj::load_obj(path, &opts).unwrap();
+    let mut v = Vec::new();
+    for m in &models {
+        let mm = &m.mesh;
+        for t in mm.indices.chunks_exact(3) {
+            v.push([t[0], t[1], t[2]].map(|i| {
+                let i = i as usize;
+                let uv = (!mm.texcoords.is_empty()).then(|| &mm.texcoords[2 * i..2 * i + 2]);
+                key(&mm.positions[3 * i..3 * i + 3], uv)
+            }));
+        }
+    }
+    v.sort();
+    v
+}
+
+#[test]
+fn shared_obj_files_match_tobj_and_keep_vertex_order() {
+    let test = "shared_obj_files_match_tobj_and_keep_vertex_order";
+    // (file, v lines, triangles or None)
+    let cases: [(&str, usize, Option<usize>); 6] = [
+        ("models3d/mediapipe/canonical_face_model.obj", 468, Some(898)),
+        ("models3d/mediapipe/face_model_with_iris.obj", 478, Some(906)),
+        ("models3d/menpo3d_james/james.obj", 6393, Some(12228)),
+        ("models3d/eos_sfm/sfm_reference.obj", 845, Some(1610)),
+        (
+            "models3d/ict_facekit/generic_neutral_mesh.obj",
+            26719,
+            Some(548 + 2 * 25836),
+        ),
+        ("models3d/ict_facekit/jawOpen.obj", 26719, Some(548 + 2 * 25836)),
+    ];
+    for (rel, nv, nt) in cases {
+        let Some(p) = shared_data_file(test, rel) else { continue };
+        let text = std::fs::read_to_string(&p).unwrap();
+        let (m, sources) = read_obj_with_sources(&p).unwrap();
+        m.validate().unwrap();
+        let v = independent_v_lines(&text);
+        assert_eq!(v.len(), nv, "{rel}");
+        for (i, q) in v.iter().enumerate() {
+            let p = m.positions[i];
+            assert_eq!([p.x, p.y, p.z], *q, "{rel}: vertex {i} moved");
+        }
+        for (i, &s) in sources.iter().enumerate() {
+            assert_eq!(m.positions[i], m.positions[s as usize]);
+        }
+        if let Some(nt) = nt {
+            assert_eq!(m.triangles.len(), nt, "{rel}");
+        }
+        assert_eq!(our_corners(&m), tobj_corners(&p), "{rel}: triangles differ from tobj");
+        eprintln!(
+            "{rel}: {} v lines, {} vertices after seam split, {} triangles, uvs: {}",
+            nv,
+            m.num_vertices(),
+            m.triangles.len(),
+            !m.uvs.is_empty()
+        );
+        // Round trip: write and read back bit-identically.
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("rt.obj");
+        write_obj(&out, &m).unwrap();
+        let back = read_obj(&out).unwrap();
+        assert_eq!(back, m, "{rel}: round trip");
+    }
+}
+
+#[test]
+fn ict_obj_and_glb_share_vertex_positions() {
+    let test = "ict_obj_and_glb_share_vertex_positions";
+    let (Some(obj), Some(glb)) = (
+        shared_data_file(test, "models3d/ict_facekit/generic_neutral_mesh.obj"),
+        shared_data_file(test, "models3d/ict_facekit/ict_face_arkit53.glb"),
+    ) else {
+        return;
+    };
+    let m = read_obj(obj).unwrap();
+    let g = read_morph_mesh(glb).unwrap();
+    // The glb holds the face area: its vertices are the first ones of the OBJ.
+    let n = g.base.num_vertices().min(m.num_vertices());
+    let max_err = (0..n)
+        .map(|i| (m.positions[i] - g.base.positions[i]).norm())
+        .fold(0.0f32, f32::max);
+    eprintln!(
+        "ICT: obj {} vertices, glb {} vertices, max |diff| over first {n} = {max_err}",
+        m.num_vertices(),
+        g.base.num_vertices()
+    );
+    assert!(max_err < 1e-4, "{max_err}");
+}
+
+#[test]
+fn obj_round_trip_synthetic_and_seams() {
+    let rig = synthetic_rig(5, 4, 0, 21);
+    for (uv, nn) in [(true, true), (true, false), (false, true), (false, false)] {
+        let mut m = rig.base.clone();
+        if !uv {
+            m.uvs.clear();
+        }
+        if !nn {
+            m.normals.clear();
+        }
+        let text = obj_to_string(&m).unwrap();
+        let (back, src) = parse_obj(&text).unwrap();
+        assert_eq!(back, m, "uv {uv} normals {nn}");
+        assert_eq!(src, (0..m.num_vertices() as u32).collect::<Vec<_>>());
+    }
+    // A quad with a seam: vertex 1 used with two UVs; negative indices; groups; comments.
+    let text = "# test\no a\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 9 9 9\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvt 0.5 0.5\n\
+                g g1\nf 1/1 2/2 3/3 4/4\ng g2\nf -4/-1 -3/3 1/1 # trailing comment\n";
+    let (m, src) = parse_obj(text).unwrap();
+    assert_eq!(m.num_vertices(), 6);
+    assert_eq!(src, vec![0, 1, 2, 3, 4, 1]);
+    assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3], [5, 2, 0]]);
+    assert_eq!(m.uvs[1], [1.0, 0.0]);
+    assert_eq!(m.uvs[5], [0.5, 0.5]);
+    assert_eq!(m.uvs[4], [0.0, 0.0]); // unused vertex kept
+    assert_eq!(m.positions[5], m.positions[1]);
+}
+
+#[test]
+fn malformed_obj_is_an_error_with_line_number() {
+    let cases = [
+        ("v 1 2\n", "line 1"),
+        ("v 1 2 x\n", "line 1"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", "line 4"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", "line 4"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3\n", "line 5"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1 2/1 3/1\n", "line 4"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/a 2 3\n", "line 4"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1/1/1 2 3\n", "line 4"),
+        ("v nan 0 0\n", "line 1"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", "line 4"),
+    ];
+    for (text, line) in cases {
+        match parse_obj(text) {
+            Err(Error::Parse { reason, .. }) => assert!(reason.contains(line), "{text:?}: {reason}"),
+            other => panic!("{text:?} accepted: {other:?}"),
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bad.obj");
+    std::fs::write(&p, "v 1 2\n").unwrap();
+    match read_obj(&p) {
+        Err(Error::Parse { path, .. }) => assert_eq!(path, p),
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(read_obj(dir.path().join("none.obj")), Err(Error::Io { .. })));
+}
+
+#[test]
+fn every_truncation_of_an_obj_is_handled() {
+    let mut m = synthetic_rig(3, 3, 0, 4).base;
+    m.triangles.truncate(4);
+    let text = obj_to_string(&m).unwrap();
+    let full = parse_obj(&text).unwrap().0;
+    for len in 0..text.len() {
+        match parse_obj(&text[..len]) {
+            Ok((t, _)) => {
+                // A cut at a line boundary (or inside a number) gives a smaller valid mesh.
+                t.validate().unwrap();
+                assert!(t.triangles.len() <= full.triangles.len());
+            }
+            Err(Error::Parse { .. }) => {}
+            Err(e) => panic!("unexpected error kind {e:?}"),
+        }
+    }
+    // Garbage bytes: never a panic.
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for _ in 0..2000 {
+        let mut b = text.clone().into_bytes();
+        for _ in 0..3 {
+            let i = rng.random_range(0..b.len());
+            b[i] = b"0123456789 /-.\nfvtn#e"[rng.random_range(0..21)];
+        }
+        let _ = parse_obj(&String::from_utf8_lossy(&b));
+    }
+}
+
+#[test]
+fn obj_writer_rejects_invalid_meshes() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("x.obj");
+    let mut m = synthetic_rig(3, 3, 0, 4).base;
+    m.triangles.push([0, 1, 100]);
+    assert!(write_obj(&p, &m).is_err());
+    let mut m = synthetic_rig(3, 3, 0, 4).base;
+    m.uvs[2][0] = f32::NAN;
+    assert!(write_obj(&p, &m).is_err());
+    assert!(!p.exists());
+}
