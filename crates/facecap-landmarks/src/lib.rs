@@ -4,6 +4,10 @@
 //! regression trees (Kazemi & Sullivan 2014), pyramidal Lucas-Kanade optical flow
 //! (Bouguet 2001) and a video landmark tracker combining them.
 
+pub mod detect;
 pub mod error;
+pub mod ert;
+pub mod lk;
+pub mod tracker;
 
 pub use error::{Error, Result};

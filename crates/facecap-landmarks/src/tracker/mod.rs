@@ -1,0 +1,1 @@
+//! Video landmark tracker (work in progress).

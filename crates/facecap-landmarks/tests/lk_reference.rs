@@ -1,0 +1,259 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+//! Fast fixed-point LK vs the slow f64 reference, on seeded synthetic images with
+//! known sub-pixel shifts; pyramid and gradient kernels vs their direct formulas;
+//! parameter validation; sequential vs rayon identity.
+
+use facecap_landmarks::lk::{reference, LkParams, LkWorkspace, Par, PyramidLk, TrackStatus};
+use image::GrayImage;
+use nalgebra::Point2;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A smooth random texture: sum of sinusoids with wavelengths 10..30 px.
+struct Texture {
+    waves: Vec<(f64, f64, f64, f64)>, // (kx, ky, phase, amplitude)
+}
+
+impl Texture {
+    fn new(rng: &mut ChaCha8Rng) -> Self {
+        let waves = (0..8)
+            .map(|_| {
+                let lambda = rng.random_range(10.0..30.0);
+                let theta: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                let k = std::f64::consts::TAU / lambda;
+                (
+                    k * theta.cos(),
+                    k * theta.sin(),
+                    rng.random_range(0.0..std::f64::consts::TAU),
+                    rng.random_range(12.0..16.0),
+                )
+            })
+            .collect();
+        Texture { waves }
+    }
+
+    fn value(&self, x: f64, y: f64) -> f64 {
+        128.0
+            + self
+                .waves
+                .iter()
+                .map(|&(kx, ky, ph, a)| a * (kx * x + ky * y + ph).sin())
+                .sum::<f64>()
+    }
+
+    fn image(&self, w: u32, h: u32, sx: f64, sy: f64) -> GrayImage {
+        GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([self.value(x as f64 - sx, y as f64 - sy).round().clamp(0.0, 255.0) as u8])
+        })
+    }
+}
+
+#[test]
+fn pyramid_and_gradients_equal_direct_formulas() {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    for &(w, h) in &[(97u32, 83u32), (128, 96), (101, 100)] {
+        let img = GrayImage::from_fn(w, h, |_, _| image::Luma([rng.random::<u8>()]));
+        let lk = PyramidLk::new(LkParams {
+            window: 9,
+            ..LkParams::default()
+        })
+        .unwrap();
+        let mut ws = LkWorkspace::new(&lk);
+        ws.push_frame(&img).unwrap();
+        let fast = ws.latest();
+        let refs = reference::pyramid(&img, 9, 3);
+        assert_eq!(fast.levels(), refs.len());
+        for (l, r) in refs.iter().enumerate() {
+            let fl = fast.level(l).unwrap();
+            assert_eq!((fl.width(), fl.height()), (r.width, r.height));
+            let (gx, gy) = reference::scharr(r);
+            for y in -9..(r.height as isize + 9) {
+                for x in -9..(r.width as isize + 9) {
+                    let v = fl.pixel(x, y).unwrap() as f64;
+                    assert_eq!(v, r.at_reflect(x as i64, y as i64), "level {l} pixel ({x},{y})");
+                    let (ix, iy) = fl.gradient(x, y).unwrap();
+                    assert_eq!(ix as f64, gx.at_zero(x as i64, y as i64), "level {l} Ix ({x},{y})");
+                    assert_eq!(iy as f64, gy.at_zero(x as i64, y as i64), "level {l} Iy ({x},{y})");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn fast_and_reference_recover_known_subpixel_shifts() {
+    let mut rng = ChaCha8Rng::seed_from_u64(2024);
+    // A tight stopping threshold: with OpenCV's 0.01 px the last step alone may leave ~0.01 px.
+    let params = LkParams {
+        epsilon: 1e-3,
+        ..LkParams::default()
+    };
+    let lk = PyramidLk::new(params).unwrap();
+    let mut ws = LkWorkspace::new(&lk);
+    let (mut worst_fast, mut worst_ref, mut worst_diff) = (0.0f64, 0.0f64, 0.0f64);
+    let mut errs_fast = Vec::new();
+    for _case in 0..6 {
+        let tex = Texture::new(&mut rng);
+        let (sx, sy) = (rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
+        let a = tex.image(160, 128, 0.0, 0.0);
+        let b = tex.image(160, 128, sx, sy);
+        let pts: Vec<Point2<f64>> = (0..8)
+            .map(|_| Point2::new(rng.random_range(30.0..130.0), rng.random_range(30.0..98.0)))
+            .collect();
+        ws.reset();
+        ws.push_frame(&a).unwrap();
+        ws.push_frame(&b).unwrap();
+        let mut next = vec![Point2::origin(); pts.len()];
+        let mut st = vec![TrackStatus::Tracked; pts.len()];
+        let mut err = vec![0.0; pts.len()];
+        let rep = lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
+        assert_eq!(rep.tracked, pts.len());
+        let refs = reference::track(&a, &b, &params, &pts);
+        for ((p, q), (r, rs)) in pts.iter().zip(&next).zip(&refs) {
+            assert_eq!(*rs, TrackStatus::Tracked);
+            let truth = Point2::new(p.x + sx, p.y + sy);
+            worst_fast = worst_fast.max((q - truth).norm());
+            errs_fast.push((q - truth).norm());
+            worst_ref = worst_ref.max((r - truth).norm());
+            worst_diff = worst_diff.max((q - r).norm());
+        }
+    }
+    errs_fast.sort_by(f64::total_cmp);
+    let p90 = errs_fast[errs_fast.len() * 9 / 10];
+    let median = errs_fast[errs_fast.len() / 2];
+    eprintln!(
+        "error vs truth: fast median {median:.4} p90 {p90:.4} max {worst_fast:.4} px; reference max {worst_ref:.4} px; fast-vs-ref max {worst_diff:.4} px"
+    );
+    // The two implementations agree far inside 0.02 px.
+    assert!(worst_diff <= 0.005, "fast vs reference {worst_diff}");
+    // Recovery of the true shift is limited by OpenCV's stopping rules (step <= 0.01 px, or
+    // the oscillation test, which fires once two consecutive steps sum to < 0.01 px): 90 % of
+    // points within 0.02 px, all within 0.03 px.
+    assert!(median <= 0.01, "fast median {median}");
+    assert!(p90 <= 0.02, "fast p90 {p90}");
+    assert!(worst_fast <= 0.03, "fast {worst_fast}");
+    assert!(worst_ref <= 0.03, "reference {worst_ref}");
+}
+
+#[test]
+fn sequential_and_rayon_are_identical_and_statuses_make_sense() {
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    let tex = Texture::new(&mut rng);
+    let mut a = tex.image(200, 150, 0.0, 0.0);
+    // A flat patch: no texture there.
+    for y in 20..60 {
+        for x in 20..60 {
+            a.put_pixel(x, y, image::Luma([100]));
+        }
+    }
+    let b = tex.image(200, 150, 1.3, -0.7);
+    let mut pts: Vec<Point2<f64>> = (0..300)
+        .map(|_| Point2::new(rng.random_range(0.0..200.0), rng.random_range(0.0..150.0)))
+        .collect();
+    pts.push(Point2::new(40.0, 40.0)); // flat
+    pts.push(Point2::new(-40.0, 20.0)); // outside
+    pts.push(Point2::new(100.0, 400.0)); // outside
+    let run = |par| {
+        let lk = PyramidLk::new(LkParams {
+            par,
+            forward_backward: Some(0.5),
+            ..LkParams::default()
+        })
+        .unwrap();
+        let mut ws = LkWorkspace::new(&lk);
+        ws.push_frame(&a).unwrap();
+        ws.push_frame(&b).unwrap();
+        let mut next = vec![Point2::origin(); pts.len()];
+        let mut st = vec![TrackStatus::Tracked; pts.len()];
+        let mut err = vec![0.0; pts.len()];
+        let rep = lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
+        (next, st, err, rep)
+    };
+    let s = run(Par::Seq);
+    let r = run(Par::Rayon);
+    assert_eq!(s.0, r.0);
+    assert_eq!(s.1, r.1);
+    assert_eq!(s.3, r.3);
+    for (x, y) in s.2.iter().zip(&r.2) {
+        assert!(x == y || (x.is_nan() && y.is_nan()));
+    }
+    let n = pts.len();
+    assert_eq!(s.1[n - 3], TrackStatus::LostLowTexture);
+    assert_eq!(s.1[n - 2], TrackStatus::LostOutOfImage);
+    assert_eq!(s.1[n - 1], TrackStatus::LostOutOfImage);
+    assert!(s.3.tracked > 200, "{:?}", s.3);
+}
+
+#[test]
+fn parameters_are_validated() {
+    let bad = [
+        LkParams {
+            window: 4,
+            ..LkParams::default()
+        },
+        LkParams {
+            window: 1,
+            ..LkParams::default()
+        },
+        LkParams {
+            window: 65,
+            ..LkParams::default()
+        },
+        LkParams {
+            max_level: 9,
+            ..LkParams::default()
+        },
+        LkParams {
+            max_iterations: 0,
+            ..LkParams::default()
+        },
+        LkParams {
+            epsilon: 0.0,
+            ..LkParams::default()
+        },
+        LkParams {
+            epsilon: f64::NAN,
+            ..LkParams::default()
+        },
+        LkParams {
+            min_eig_threshold: -1.0,
+            ..LkParams::default()
+        },
+        LkParams {
+            min_eig_threshold: f64::INFINITY,
+            ..LkParams::default()
+        },
+        LkParams {
+            forward_backward: Some(0.0),
+            ..LkParams::default()
+        },
+    ];
+    for p in bad {
+        let e = PyramidLk::new(p).unwrap_err().to_string();
+        assert!(e.contains("lk."), "{e}");
+    }
+    let lk = PyramidLk::new(LkParams::default()).unwrap();
+    let mut ws = LkWorkspace::new(&lk);
+    let img = GrayImage::new(64, 64);
+    let pts = [Point2::new(1.0, 1.0)];
+    let mut next = [Point2::origin()];
+    let mut st = [TrackStatus::Tracked];
+    let mut err = [0.0];
+    assert!(
+        lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).is_err(),
+        "no frames yet"
+    );
+    ws.push_frame(&img).unwrap();
+    ws.push_frame(&img).unwrap();
+    assert!(lk.track_into(&ws, &pts, &mut next[..0], &mut st, &mut err).is_err());
+    assert!(lk
+        .track_into(&ws, &[Point2::new(f64::NAN, 0.0)], &mut next, &mut st, &mut err)
+        .is_err());
+    assert!(ws.push_frame(&GrayImage::new(10, 100)).is_err());
+    let other = PyramidLk::new(LkParams {
+        window: 11,
+        ..LkParams::default()
+    })
+    .unwrap();
+    assert!(other.track_into(&ws, &pts, &mut next, &mut st, &mut err).is_err());
+}
