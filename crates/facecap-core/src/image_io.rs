@@ -72,9 +72,7 @@ pub fn load_dynamic(path: &Path, frame: Option<u64>) -> Result<DynamicImage> {
         return Err(decode_error(path, frame, "empty file (0 bytes)"));
     }
     let reader = image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
-    let reader = reader
-        .with_guessed_format()
-        .map_err(|e| Error::io(path, e))?;
+    let reader = reader.with_guessed_format().map_err(|e| Error::io(path, e))?;
     if reader.format().is_none() {
         return Err(decode_error(
             path,
@@ -156,7 +154,8 @@ pub fn image_dimensions(path: impl AsRef<Path>) -> Result<(u32, u32)> {
     if meta.len() == 0 {
         return Err(decode_error(path, None, "empty file (0 bytes)"));
     }
-    let (w, h) = image::image_dimensions(path).map_err(|e| decode_error(path, None, format!("cannot read image header: {e}")))?;
+    let (w, h) = image::image_dimensions(path)
+        .map_err(|e| decode_error(path, None, format!("cannot read image header: {e}")))?;
     if w == 0 || h == 0 {
         return Err(decode_error(path, None, format!("image has zero size {w}x{h}")));
     }
@@ -205,7 +204,9 @@ mod tests {
     fn truncated_png_is_an_error() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("a.png");
-        GrayImage::from_fn(32, 32, |x, y| image::Luma([(x * 7 + y * 3) as u8])).save(&p).unwrap();
+        GrayImage::from_fn(32, 32, |x, y| image::Luma([(x * 7 + y * 3) as u8]))
+            .save(&p)
+            .unwrap();
         let bytes = std::fs::read(&p).unwrap();
         for cut in [8, bytes.len() / 2, bytes.len() - 13] {
             let q = dir.path().join(format!("cut{cut}.png"));

@@ -46,7 +46,8 @@ const LOG_TAIL_LINES: usize = 8;
 const FALLBACK_FPS: f64 = 30.0;
 
 /// How to install ffmpeg, for error messages.
-pub const INSTALL_HINT: &str = "install it with `apt-get install ffmpeg` (Debian/Ubuntu) or run `bash scripts/setup.sh`, \
+pub const INSTALL_HINT: &str =
+    "install it with `apt-get install ffmpeg` (Debian/Ubuntu) or run `bash scripts/setup.sh`, \
 which also caches the static ffmpeg of the PyPI wheel imageio-ffmpeg; or point FACECAP_FFMPEG at an ffmpeg binary";
 
 fn find_in_path(name: &str) -> Option<PathBuf> {
@@ -69,7 +70,10 @@ pub fn locate_ffmpeg(explicit: Option<&Path>) -> Result<PathBuf> {
         return if p.is_file() {
             Ok(p.to_path_buf())
         } else {
-            Err(tool_err(format!("the given ffmpeg {} does not exist; {INSTALL_HINT}", p.display())))
+            Err(tool_err(format!(
+                "the given ffmpeg {} does not exist; {INSTALL_HINT}",
+                p.display()
+            )))
         };
     }
     if let Some(p) = std::env::var_os(FFMPEG_ENV) {
@@ -77,7 +81,10 @@ pub fn locate_ffmpeg(explicit: Option<&Path>) -> Result<PathBuf> {
         return if p.is_file() {
             Ok(p)
         } else {
-            Err(tool_err(format!("{FFMPEG_ENV}={} does not exist; {INSTALL_HINT}", p.display())))
+            Err(tool_err(format!(
+                "{FFMPEG_ENV}={} does not exist; {INSTALL_HINT}",
+                p.display()
+            )))
         };
     }
     if let Some(p) = find_in_path("ffmpeg") {
@@ -106,7 +113,14 @@ pub fn locate_ffprobe(ffmpeg: &Path) -> Option<PathBuf> {
 /// The container's frame count of the first video stream (`nb_frames`), via ffprobe.
 pub fn probe_frame_count(ffprobe: &Path, file: &Path) -> Option<u64> {
     let out = Command::new(ffprobe)
-        .args(["-v", "error", "-select_streams", "V:0", "-show_entries", "stream=nb_frames"])
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "V:0",
+            "-show_entries",
+            "stream=nb_frames",
+        ])
         .args(["-of", "default=noprint_wrappers=1:nokey=1"])
         .arg(file)
         .stdin(Stdio::null())
@@ -163,7 +177,11 @@ pub fn parse_showinfo_frame(line: &str) -> Option<ShowinfoFrame> {
     let rest = body.strip_prefix("n:")?;
     let n = leading_token(rest.trim_start()).parse().ok()?;
     let pts_tok = leading_token(field_after(body, " pts:")?);
-    let pts = if pts_tok == "NOPTS" { None } else { Some(pts_tok.parse().ok()?) };
+    let pts = if pts_tok == "NOPTS" {
+        None
+    } else {
+        Some(pts_tok.parse().ok()?)
+    };
     let (w, h) = leading_token(field_after(body, " s:")?).split_once('x')?;
     Some(ShowinfoFrame {
         n,
@@ -230,7 +248,10 @@ fn parse_rate(field: &str, unit: &str) -> Option<f64> {
         Some(n) => (n, 1000.0),
         None => (v, 1.0),
     };
-    num.parse::<f64>().ok().map(|x| x * mul).filter(|x| x.is_finite() && *x > 0.0)
+    num.parse::<f64>()
+        .ok()
+        .map(|x| x * mul)
+        .filter(|x| x.is_finite() && *x > 0.0)
 }
 
 impl StreamHeader {
@@ -315,7 +336,14 @@ impl FfmpegSource {
         }
         cmd.args(["-copyts", "-i"])
             .arg(path)
-            .args(["-map", "0:V:0", "-vf", "showinfo=checksum=0", "-fps_mode", "passthrough"])
+            .args([
+                "-map",
+                "0:V:0",
+                "-vf",
+                "showinfo=checksum=0",
+                "-fps_mode",
+                "passthrough",
+            ])
             .args(["-f", "rawvideo", "-pix_fmt", pix_fmt, "pipe:1"])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -447,9 +475,23 @@ impl FfmpegSource {
     }
 
     /// Keeps the last diagnostic lines (not the indented stream report or progress lines).
+    /// Process id of the ffmpeg child (for diagnostics and tests).
+    pub fn child_id(&self) -> u32 {
+        self.child.id()
+    }
+
     fn push_tail(&mut self, line: String) {
-        const NOISE: [&str; 7] = ["frame=", "video:", "Input #", "Output #", "Stream mapping", "Press [q]", "[Parsed_showinfo_"];
-        if line.trim().is_empty() || line.starts_with(char::is_whitespace) || NOISE.iter().any(|n| line.starts_with(n)) {
+        const NOISE: [&str; 7] = [
+            "frame=",
+            "video:",
+            "Input #",
+            "Output #",
+            "Stream mapping",
+            "Press [q]",
+            "[Parsed_showinfo_",
+        ];
+        if line.trim().is_empty() || line.starts_with(char::is_whitespace) || NOISE.iter().any(|n| line.starts_with(n))
+        {
             return;
         }
         if self.tail.len() == LOG_TAIL_LINES {
@@ -565,7 +607,10 @@ impl FfmpegSource {
         };
         let k = self.next_index;
         if rep.n != k {
-            return Err(self.decode_err(Some(k), format!("ffmpeg reported frame {} where {k} was expected", rep.n)));
+            return Err(self.decode_err(
+                Some(k),
+                format!("ffmpeg reported frame {} where {k} was expected", rep.n),
+            ));
         }
         let (w, h) = (self.info.width, self.info.height);
         if (rep.width, rep.height) != (w, h) {
@@ -661,8 +706,17 @@ mod tests {
             "n:   1 pts:   3000 pts_time:0.0333333 pos:    56313 fmt:yuv420p sar:15/16 s:512x480 i:P iskey:0 type:B",
         )
         .unwrap();
-        assert_eq!(f, ShowinfoFrame { n: 1, pts: Some(3000), width: 512, height: 480 });
-        let f = parse_showinfo_frame("n:1000 pts:1038000 pts_time:11.5333 pos: 1 fmt:yuv420p sar:0/1 s:480x480 i:P").unwrap();
+        assert_eq!(
+            f,
+            ShowinfoFrame {
+                n: 1,
+                pts: Some(3000),
+                width: 512,
+                height: 480
+            }
+        );
+        let f = parse_showinfo_frame("n:1000 pts:1038000 pts_time:11.5333 pos: 1 fmt:yuv420p sar:0/1 s:480x480 i:P")
+            .unwrap();
         assert_eq!((f.n, f.pts), (1000, Some(1038000)));
         let f = parse_showinfo_frame("n:   2 pts:NOPTS pts_time:NOPTS pos: -1 fmt:gray sar:1/1 s:4x2 i:P").unwrap();
         assert_eq!(f.pts, None);
@@ -692,7 +746,9 @@ mod tests {
 
     #[test]
     fn missing_ffmpeg_is_a_tool_error() {
-        let e = locate_ffmpeg(Some(Path::new("/nonexistent/ffmpeg"))).unwrap_err().to_string();
+        let e = locate_ffmpeg(Some(Path::new("/nonexistent/ffmpeg")))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("apt-get install ffmpeg"), "{e}");
     }
 }

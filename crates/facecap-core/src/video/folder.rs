@@ -102,6 +102,8 @@ impl FrameSource for ImageFolderSource {
             return Ok(false);
         };
         let index = self.next_index;
+        // A bad image consumes its frame index: the next call goes on with the next file.
+        self.next_index += 1;
         let img = image_io::load_dynamic(file, Some(index))?;
         if (img.width(), img.height()) != (self.info.width, self.info.height) {
             return Err(Error::Decode {
@@ -124,7 +126,6 @@ impl FrameSource for ImageFolderSource {
         }
         frame.index = index;
         frame.timestamp_s = index as f64 / self.info.fps;
-        self.next_index += 1;
         Ok(true)
     }
 }

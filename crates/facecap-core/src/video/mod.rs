@@ -9,7 +9,7 @@
 //! |---|---|---|
 //! | a directory | [`folder::ImageFolderSource`]: files with an image extension (`png jpg jpeg pgm ppm pbm pnm`), sorted by file name (byte order: zero-pad numbers) | `index / folder_fps` |
 //! | a single image file | the same source with one frame | 0 |
-//! | content starting with `YUV4MPEG2 ` | [`y4m::Y4mSource`] | `index * F_den / F_num` |
+//! | extension `.y4m` or content starting with `YUV4MPEG2 ` | [`y4m::Y4mSource`] | `index * F_den / F_num` |
 //! | anything else | [`ffmpeg::FfmpegSource`] | the frame's pts (`pts * time_base`), exactly what `ffprobe -show_entries frame=pts_time` reports |
 //!
 //! ## Grey levels
@@ -228,7 +228,8 @@ pub fn open_source(path: impl AsRef<Path>, opts: &SourceOptions) -> Result<Box<d
             reason: "empty file (0 bytes)".into(),
         });
     }
-    if y4m::is_y4m(path)? {
+    let ext_is = |e: &str| path.extension().is_some_and(|x| x.eq_ignore_ascii_case(e));
+    if ext_is("y4m") || y4m::is_y4m(path)? {
         return Ok(Box::new(y4m::Y4mSource::open(path, opts)?));
     }
     if crate::image_io::has_image_extension(path) {

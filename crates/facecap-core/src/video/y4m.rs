@@ -86,7 +86,11 @@ impl Y4mHeader {
     /// Bytes of one frame's planes.
     pub fn frame_len(&self) -> usize {
         let y = self.width as usize * self.height as usize;
-        let c = if self.subsampling.is_some() { 2 * self.chroma_len() } else { 0 };
+        let c = if self.subsampling.is_some() {
+            2 * self.chroma_len()
+        } else {
+            0
+        };
         y + c + if self.alpha { y } else { 0 }
     }
 }
@@ -107,7 +111,9 @@ pub fn parse_header(path: &Path, line: &[u8]) -> Result<Y4mHeader> {
             "W" => w = Some(val.parse::<u32>().map_err(|_| bad(format!("bad width {tok:?}")))?),
             "H" => h = Some(val.parse::<u32>().map_err(|_| bad(format!("bad height {tok:?}")))?),
             "F" => {
-                let (n, d) = val.split_once(':').ok_or_else(|| bad(format!("bad frame rate {tok:?}")))?;
+                let (n, d) = val
+                    .split_once(':')
+                    .ok_or_else(|| bad(format!("bad frame rate {tok:?}")))?;
                 let n = n.parse::<u32>().map_err(|_| bad(format!("bad frame rate {tok:?}")))?;
                 let d = d.parse::<u32>().map_err(|_| bad(format!("bad frame rate {tok:?}")))?;
                 if n == 0 || d == 0 {
@@ -215,7 +221,11 @@ impl Y4mSource {
         let mut complete = false;
         read_line(&mut reader, &mut line, MAX_HEADER_LEN, &mut complete).map_err(|e| Error::io(path, e))?;
         if !complete {
-            return Err(Error::parse("Y4M", path, "stream header is not terminated by a newline"));
+            return Err(Error::parse(
+                "Y4M",
+                path,
+                "stream header is not terminated by a newline",
+            ));
         }
         let header = parse_header(path, &line)?;
         let header_len = line.len() as u64 + 1;
@@ -331,9 +341,12 @@ impl Y4mSource {
 
     /// Rewinds to the first frame.
     pub fn rewind(&mut self) -> Result<()> {
-        self.reader.seek(SeekFrom::Start(0)).map_err(|e| Error::io(&self.path, e))?;
+        self.reader
+            .seek(SeekFrom::Start(0))
+            .map_err(|e| Error::io(&self.path, e))?;
         let mut complete = false;
-        read_line(&mut self.reader, &mut self.line, MAX_HEADER_LEN, &mut complete).map_err(|e| Error::io(&self.path, e))?;
+        read_line(&mut self.reader, &mut self.line, MAX_HEADER_LEN, &mut complete)
+            .map_err(|e| Error::io(&self.path, e))?;
         self.next_index = 0;
         self.done = false;
         Ok(())
@@ -400,8 +413,14 @@ mod tests {
         assert_eq!(h.frame_len(), 9 + 2 * 2 * 3);
         let h = parse_header(p, b"YUV4MPEG2 W3 H3 F25:1 Cmono XCOLORRANGE=LIMITED").unwrap();
         assert_eq!((h.frame_len(), h.range), (9, ColorRange::Limited));
-        assert!(parse_header(p, b"YUV4MPEG2 W3 H3 F25:1 C420p10").unwrap_err().to_string().contains("C420p10"));
-        assert!(parse_header(p, b"YUV4MPEG2 W3 F25:1").unwrap_err().to_string().contains("H (height)"));
+        assert!(parse_header(p, b"YUV4MPEG2 W3 H3 F25:1 C420p10")
+            .unwrap_err()
+            .to_string()
+            .contains("C420p10"));
+        assert!(parse_header(p, b"YUV4MPEG2 W3 F25:1")
+            .unwrap_err()
+            .to_string()
+            .contains("H (height)"));
         assert!(parse_header(p, b"YUV4MPEG2 W3 H3 F0:1").is_err());
         assert!(parse_header(p, b"YUV4MPEG2 W0 H3 F1:1").is_err());
     }
