@@ -1,0 +1,458 @@
+//! The default rig used when `facecap capture` gets no `--rig`: built here, from no
+//! external file.
+//!
+//! * **Neutral landmarks**: a 68-point 3D mean face (iBUG order, centimetres, +Y up,
+//!   +Z out of the face). The numbers are the 68 landmark vertices of the ICT-FaceKit
+//!   generic neutral mesh (USC ICT, MIT licence), rounded to 0.1 mm.
+//! * **Dense mesh**: the 68 points are Delaunay-triangulated in the frontal (x, y)
+//!   plane, each triangle is split 4-to-1 twice (16 triangles each), and every new
+//!   vertex gets its depth from a thin-plate spline through the 68 landmarks, so the
+//!   surface is smooth and passes exactly through the landmarks. Vertices 0..67 are the
+//!   landmarks themselves, so the landmark map is the identity.
+//! * **Blendshapes**: 16 ARKit-named expression shapes (`jawOpen`, `mouthSmileLeft`, ...)
+//!   defined as 3D displacements of the 68 landmarks (FACS-style: which points move,
+//!   which way, by how many cm) and spread over the dense mesh by the same thin-plate
+//!   spline, so each shape is a smooth displacement field. "Left" is the subject's left
+//!   (image right, +X).
+
+use facecap_core::landmark_map::LandmarkMap;
+use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
+use nalgebra::{DMatrix, DVector, Point3, Vector3};
+
+/// 3D mean face, iBUG-68 order, cm (see module docs).
+pub const MEAN_FACE_68_CM: [[f64; 3]; 68] = [
+    [-7.3630, 3.6763, 3.6567],
+    [-7.2762, 1.4911, 3.9250],
+    [-6.9376, -0.4614, 4.5329],
+    [-6.5567, -2.3563, 5.1738],
+    [-5.7241, -4.4868, 6.1275],
+    [-4.3023, -6.2072, 7.3472],
+    [-3.0511, -6.9123, 8.7710],
+    [-1.5369, -7.2580, 10.2709],
+    [0.0000, -7.5671, 10.4320],
+    [1.5369, -7.2580, 10.2709],
+    [3.0511, -6.9123, 8.7710],
+    [4.3023, -6.2072, 7.3472],
+    [5.7241, -4.4868, 6.1275],
+    [6.5567, -2.3563, 5.1738],
+    [6.9376, -0.4614, 4.5329],
+    [7.2762, 1.4911, 3.9250],
+    [7.3630, 3.6763, 3.6567],
+    [-5.8154, 5.1987, 7.9104],
+    [-4.9326, 5.9768, 8.9889],
+    [-3.7933, 6.2551, 9.8275],
+    [-2.4145, 6.1917, 10.4817],
+    [-1.1719, 5.9083, 10.7279],
+    [1.1719, 5.9083, 10.7279],
+    [2.4145, 6.1917, 10.4817],
+    [3.7933, 6.2551, 9.8275],
+    [4.9326, 5.9768, 8.9889],
+    [5.8154, 5.1987, 7.9104],
+    [0.0000, 3.7410, 10.7344],
+    [0.0000, 2.6343, 11.5179],
+    [0.0000, 1.6116, 12.3060],
+    [0.0000, 0.4059, 13.0691],
+    [-1.2531, -1.1447, 10.8712],
+    [-0.6024, -1.1377, 11.4192],
+    [0.0000, -1.2033, 11.5657],
+    [0.6024, -1.1377, 11.4192],
+    [1.2531, -1.1447, 10.8712],
+    [-4.4590, 3.4321, 8.6029],
+    [-3.8691, 3.8747, 9.3627],
+    [-2.7813, 3.9361, 9.5314],
+    [-1.8438, 3.2519, 9.1957],
+    [-2.7292, 3.0847, 9.4139],
+    [-3.8560, 3.0716, 9.2287],
+    [1.8441, 3.2524, 9.1955],
+    [2.7813, 3.9361, 9.5314],
+    [3.8691, 3.8747, 9.3627],
+    [4.4590, 3.4321, 8.6029],
+    [3.8560, 3.0716, 9.2287],
+    [2.7292, 3.0847, 9.4139],
+    [-2.5349, -3.5196, 10.1875],
+    [-1.7021, -2.7768, 11.2210],
+    [-0.7282, -2.4223, 11.7294],
+    [0.0000, -2.4825, 11.8387],
+    [0.7282, -2.4223, 11.7294],
+    [1.7021, -2.7768, 11.2210],
+    [2.5349, -3.5196, 10.1875],
+    [1.8008, -4.0565, 10.8984],
+    [1.0343, -4.3023, 11.3885],
+    [0.0000, -4.3769, 11.5492],
+    [-1.0343, -4.3023, 11.3885],
+    [-1.8008, -4.0565, 10.8984],
+    [-2.2092, -3.4901, 10.1277],
+    [-0.9963, -3.2969, 11.0867],
+    [0.0000, -3.3235, 11.2810],
+    [0.9963, -3.2969, 11.0867],
+    [2.2092, -3.4901, 10.1277],
+    [1.0692, -3.3797, 11.0401],
+    [0.0000, -3.3998, 11.2526],
+    [-1.0692, -3.3797, 11.0401],
+];
+
+/// Number of 4-to-1 subdivision passes of the landmark triangulation.
+const SUBDIVISIONS: usize = 2;
+
+/// Names of the default rig's blendshapes (a subset of ARKit's 52).
+pub const DEFAULT_SHAPES: [&str; 16] = [
+    "jawOpen",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "mouthFrownLeft",
+    "mouthFrownRight",
+    "mouthPucker",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "browInnerUp",
+    "browDownLeft",
+    "browDownRight",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "eyeBlinkLeft",
+    "eyeBlinkRight",
+    "mouthRollLower",
+];
+
+/// Displacement (cm) of each of the 68 landmarks for the named shape.
+fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
+    let mut d = [Vector3::zeros(); 68];
+    let p = |i: usize| Vector3::new(MEAN_FACE_68_CM[i][0], MEAN_FACE_68_CM[i][1], MEAN_FACE_68_CM[i][2]);
+    let mut set = |ids: &[usize], v: Vector3<f64>| {
+        for &i in ids {
+            d[i] += v;
+        }
+    };
+    match name {
+        "jawOpen" => {
+            // Jaw rotates down: chin moves most, jaw angle points little.
+            for i in 2..=14usize {
+                let w = (1.0 - (i as f64 - 8.0).abs() / 6.5).max(0.0);
+                set(&[i], Vector3::new(0.0, -1.6 * w, -0.4 * w));
+            }
+            set(&[56, 57, 58, 65, 66, 67], Vector3::new(0.0, -1.5, -0.3));
+            set(&[55, 59], Vector3::new(0.0, -1.0, -0.2));
+            set(&[48, 54, 60, 64], Vector3::new(0.0, -0.5, -0.1));
+        }
+        "mouthSmileLeft" | "mouthSmileRight" => {
+            let (s, corner, inner, near) = if name.ends_with("Left") {
+                (1.0, 54, 64, [53, 55])
+            } else {
+                (-1.0, 48, 60, [49, 59])
+            };
+            set(&[corner, inner], Vector3::new(0.5 * s, 0.55, -0.15));
+            set(&near, Vector3::new(0.25 * s, 0.3, -0.05));
+            let cheek = if s > 0.0 { [12, 13] } else { [4, 3] };
+            set(&cheek, Vector3::new(0.1 * s, 0.15, 0.05));
+        }
+        "mouthFrownLeft" | "mouthFrownRight" => {
+            let (corner, inner, near) = if name.ends_with("Left") {
+                (54, 64, [53, 55])
+            } else {
+                (48, 60, [49, 59])
+            };
+            set(&[corner, inner], Vector3::new(0.0, -0.5, 0.0));
+            set(&near, Vector3::new(0.0, -0.25, 0.0));
+        }
+        "mouthPucker" => {
+            set(&[48, 60], Vector3::new(0.7, 0.0, 0.3));
+            set(&[54, 64], Vector3::new(-0.7, 0.0, 0.3));
+            set(&[49, 59, 61, 67], Vector3::new(0.35, 0.0, 0.45));
+            set(&[53, 55, 63, 65], Vector3::new(-0.35, 0.0, 0.45));
+            set(&[50, 51, 52, 56, 57, 58, 62, 66], Vector3::new(0.0, 0.0, 0.5));
+        }
+        "mouthStretchLeft" | "mouthStretchRight" => {
+            let (s, corner, inner, near) = if name.ends_with("Left") {
+                (1.0, 54, 64, [53, 55])
+            } else {
+                (-1.0, 48, 60, [49, 59])
+            };
+            set(&[corner, inner], Vector3::new(0.6 * s, -0.2, -0.1));
+            set(&near, Vector3::new(0.3 * s, -0.1, 0.0));
+        }
+        "browInnerUp" => {
+            set(&[21, 22], Vector3::new(0.0, 0.7, 0.0));
+            set(&[20, 23], Vector3::new(0.0, 0.4, 0.0));
+            set(&[19, 24], Vector3::new(0.0, 0.15, 0.0));
+        }
+        "browDownLeft" | "browDownRight" => {
+            let (ids, s) = if name.ends_with("Left") {
+                ([22, 23, 24, 25, 26], 1.0)
+            } else {
+                ([21, 20, 19, 18, 17], -1.0)
+            };
+            for (k, &i) in ids.iter().enumerate() {
+                let w = 1.0 - 0.15 * k as f64;
+                set(&[i], Vector3::new(-0.15 * s * w, -0.45 * w, 0.0));
+            }
+        }
+        "browOuterUpLeft" | "browOuterUpRight" => {
+            let ids = if name.ends_with("Left") {
+                [26, 25, 24]
+            } else {
+                [17, 18, 19]
+            };
+            for (k, &i) in ids.iter().enumerate() {
+                set(&[i], Vector3::new(0.0, 0.6 - 0.2 * k as f64, 0.0));
+            }
+        }
+        "eyeBlinkLeft" | "eyeBlinkRight" => {
+            // Upper lid meets the lower lid.
+            let pairs: [(usize, usize); 2] = if name.ends_with("Left") {
+                [(43, 47), (44, 46)]
+            } else {
+                [(37, 41), (38, 40)]
+            };
+            for (up, low) in pairs {
+                let dy = p(low).y - p(up).y;
+                set(&[up], Vector3::new(0.0, 0.85 * dy, 0.0));
+                set(&[low], Vector3::new(0.0, -0.15 * dy, 0.0));
+            }
+        }
+        "mouthRollLower" => {
+            set(&[56, 57, 58], Vector3::new(0.0, 0.35, -0.3));
+            set(&[65, 66, 67], Vector3::new(0.0, 0.2, -0.3));
+        }
+        _ => {}
+    }
+    d
+}
+
+/// Thin-plate spline `R^2 -> R` through the 68 landmarks' (x, y).
+struct Tps {
+    centres: Vec<(f64, f64)>,
+    lu: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
+}
+
+fn tps_kernel(r2: f64) -> f64 {
+    if r2 <= 0.0 {
+        0.0
+    } else {
+        0.5 * r2 * r2.ln()
+    }
+}
+
+impl Tps {
+    fn new(centres: Vec<(f64, f64)>) -> Option<Self> {
+        let n = centres.len();
+        let mut a = DMatrix::zeros(n + 3, n + 3);
+        for i in 0..n {
+            for j in 0..n {
+                let (dx, dy) = (centres[i].0 - centres[j].0, centres[i].1 - centres[j].1);
+                a[(i, j)] = tps_kernel(dx * dx + dy * dy);
+            }
+            a[(i, n)] = 1.0;
+            a[(i, n + 1)] = centres[i].0;
+            a[(i, n + 2)] = centres[i].1;
+            a[(n, i)] = 1.0;
+            a[(n + 1, i)] = centres[i].0;
+            a[(n + 2, i)] = centres[i].1;
+        }
+        let lu = a.lu();
+        lu.is_invertible().then_some(Tps { centres, lu })
+    }
+
+    /// Coefficients for values at the centres.
+    fn fit(&self, values: &[f64]) -> Option<DVector<f64>> {
+        let n = self.centres.len();
+        let mut b = DVector::zeros(n + 3);
+        for (i, v) in values.iter().enumerate() {
+            b[i] = *v;
+        }
+        self.lu.solve(&b)
+    }
+
+    fn eval(&self, coef: &DVector<f64>, x: f64, y: f64) -> f64 {
+        let n = self.centres.len();
+        let mut v = coef[n] + coef[n + 1] * x + coef[n + 2] * y;
+        for (i, c) in self.centres.iter().enumerate() {
+            let (dx, dy) = (x - c.0, y - c.1);
+            v += coef[i] * tps_kernel(dx * dx + dy * dy);
+        }
+        v
+    }
+}
+
+/// Bowyer-Watson Delaunay triangulation of 2D points (CCW triangles).
+fn delaunay(points: &[(f64, f64)]) -> Vec<[u32; 3]> {
+    let n = points.len();
+    let (mut minx, mut miny, mut maxx, mut maxy) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for p in points {
+        minx = minx.min(p.0);
+        miny = miny.min(p.1);
+        maxx = maxx.max(p.0);
+        maxy = maxy.max(p.1);
+    }
+    let size = (maxx - minx).max(maxy - miny) * 20.0;
+    let (cx, cy) = ((minx + maxx) / 2.0, (miny + maxy) / 2.0);
+    let mut pts = points.to_vec();
+    pts.push((cx - size, cy - size));
+    pts.push((cx + size, cy - size));
+    pts.push((cx, cy + size));
+    let mut tris: Vec<[usize; 3]> = vec![[n, n + 1, n + 2]];
+    let circum = |t: &[usize; 3], pts: &[(f64, f64)]| {
+        let (a, b, c) = (pts[t[0]], pts[t[1]], pts[t[2]]);
+        let d = 2.0 * (a.0 * (b.1 - c.1) + b.0 * (c.1 - a.1) + c.0 * (a.1 - b.1));
+        let a2 = a.0 * a.0 + a.1 * a.1;
+        let b2 = b.0 * b.0 + b.1 * b.1;
+        let c2 = c.0 * c.0 + c.1 * c.1;
+        let ux = (a2 * (b.1 - c.1) + b2 * (c.1 - a.1) + c2 * (a.1 - b.1)) / d;
+        let uy = (a2 * (c.0 - b.0) + b2 * (a.0 - c.0) + c2 * (b.0 - a.0)) / d;
+        (ux, uy, (a.0 - ux).powi(2) + (a.1 - uy).powi(2))
+    };
+    for i in 0..n {
+        let p = pts[i];
+        let mut bad = Vec::new();
+        let mut keep = Vec::new();
+        for t in tris.drain(..) {
+            let (ux, uy, r2) = circum(&t, &pts);
+            if (p.0 - ux).powi(2) + (p.1 - uy).powi(2) < r2 {
+                bad.push(t);
+            } else {
+                keep.push(t);
+            }
+        }
+        // Boundary edges of the cavity: edges of bad triangles not shared by another bad one.
+        let mut edges: Vec<(usize, usize)> = Vec::new();
+        for t in &bad {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                let shared = bad.iter().filter(|u| u.contains(&a) && u.contains(&b)).count() > 1;
+                if !shared {
+                    edges.push((a, b));
+                }
+            }
+        }
+        tris = keep;
+        for (a, b) in edges {
+            tris.push([a, b, i]);
+        }
+    }
+    tris.into_iter()
+        .filter(|t| t.iter().all(|&v| v < n))
+        .map(|t| {
+            let (a, b, c) = (pts[t[0]], pts[t[1]], pts[t[2]]);
+            let cross = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+            if cross >= 0.0 {
+                [t[0] as u32, t[1] as u32, t[2] as u32]
+            } else {
+                [t[0] as u32, t[2] as u32, t[1] as u32]
+            }
+        })
+        .collect()
+}
+
+/// The default rig: dense mesh with 16 morph targets, and its identity landmark map.
+///
+/// # Errors
+/// Only if the built-in data were degenerate (a bug), reported as an error.
+pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
+    let centres: Vec<(f64, f64)> = MEAN_FACE_68_CM.iter().map(|p| (p[0], p[1])).collect();
+    let mut tris = delaunay(&centres);
+    // Planar vertex positions (x, y) of the subdivided mesh.
+    let mut xy = centres.clone();
+    for _ in 0..SUBDIVISIONS {
+        let mut mid = std::collections::HashMap::new();
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        let mut midpoint = |a: u32, b: u32, xy: &mut Vec<(f64, f64)>| -> u32 {
+            let key = (a.min(b), a.max(b));
+            *mid.entry(key).or_insert_with(|| {
+                let (pa, pb) = (xy[a as usize], xy[b as usize]);
+                xy.push(((pa.0 + pb.0) / 2.0, (pa.1 + pb.1) / 2.0));
+                (xy.len() - 1) as u32
+            })
+        };
+        for [a, b, c] in tris {
+            let ab = midpoint(a, b, &mut xy);
+            let bc = midpoint(b, c, &mut xy);
+            let ca = midpoint(c, a, &mut xy);
+            next.extend_from_slice(&[[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+        }
+        tris = next;
+    }
+    let tps = Tps::new(centres).ok_or_else(|| anyhow::anyhow!("default rig: degenerate landmark layout"))?;
+    let field = |values: &[f64]| -> anyhow::Result<Vec<f64>> {
+        let coef = tps
+            .fit(values)
+            .ok_or_else(|| anyhow::anyhow!("default rig: spline fit failed"))?;
+        Ok(xy
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, y))| if i < 68 { values[i] } else { tps.eval(&coef, x, y) })
+            .collect())
+    };
+    let z: Vec<f64> = field(&MEAN_FACE_68_CM.iter().map(|p| p[2]).collect::<Vec<_>>())?;
+    let positions: Vec<Point3<f32>> = xy
+        .iter()
+        .zip(&z)
+        .map(|(&(x, y), &z)| Point3::new(x as f32, y as f32, z as f32))
+        .collect();
+    let uvs = {
+        let (minx, maxx) = xy
+            .iter()
+            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+        let (miny, maxy) = xy
+            .iter()
+            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
+        xy.iter()
+            .map(|p| {
+                [
+                    ((p.0 - minx) / (maxx - minx)) as f32,
+                    (1.0 - (p.1 - miny) / (maxy - miny)) as f32,
+                ]
+            })
+            .collect()
+    };
+    let mut base = Mesh {
+        positions,
+        triangles: tris,
+        normals: Vec::new(),
+        uvs,
+    };
+    base.compute_normals();
+    let mut targets = Vec::with_capacity(DEFAULT_SHAPES.len());
+    for name in DEFAULT_SHAPES {
+        let d = landmark_displacements(name);
+        let dx = field(&d.iter().map(|v| v.x).collect::<Vec<_>>())?;
+        let dy = field(&d.iter().map(|v| v.y).collect::<Vec<_>>())?;
+        let dz = field(&d.iter().map(|v| v.z).collect::<Vec<_>>())?;
+        let deltas = (0..xy.len())
+            .map(|i| Vector3::new(dx[i] as f32, dy[i] as f32, dz[i] as f32))
+            .collect();
+        targets.push(MorphTarget {
+            name: name.to_string(),
+            deltas,
+        });
+    }
+    let rig = MorphMesh { base, targets };
+    rig.validate()?;
+    let ids: Vec<Option<u32>> = (0..68u32).map(Some).collect();
+    let map = LandmarkMap::from_slice(&ids)?;
+    Ok((rig, map))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_rig_is_valid_and_exact_at_landmarks() {
+        let (rig, map) = default_rig().unwrap();
+        assert!(rig.base.num_vertices() > 68 * 8);
+        assert_eq!(rig.targets.len(), 16);
+        map.validate(rig.base.num_vertices()).unwrap();
+        for (i, p) in MEAN_FACE_68_CM.iter().enumerate() {
+            let v = rig.base.positions[i];
+            assert!((v.x as f64 - p[0]).abs() < 1e-5 && (v.z as f64 - p[2]).abs() < 1e-5);
+        }
+        // jawOpen moves the chin down by 1.6 cm and leaves the brows alone.
+        let jaw = &rig.targets[0];
+        assert!((jaw.deltas[8].y + 1.6).abs() < 1e-5);
+        assert!(jaw.deltas[19].norm() < 1e-6);
+        // Every triangle has positive area in the frontal plane (no fold-overs).
+        for t in &rig.base.triangles {
+            let [a, b, c] = t.map(|i| rig.base.positions[i as usize]);
+            let cross = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
+            assert!(cross > 0.0);
+        }
+    }
+}
