@@ -39,3 +39,4 @@ pub mod gltf_io;
 pub mod image_io;
 pub mod video;
 pub mod obj;
+pub mod csv;
