@@ -40,3 +40,4 @@ pub mod image_io;
 pub mod video;
 pub mod obj;
 pub mod csv;
+pub mod formats;
