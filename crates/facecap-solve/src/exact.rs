@@ -1,0 +1,202 @@
+//! Exact bounded 2D solver (ours): the seed's objective solved exactly as a box QP.
+//!
+//! With the similarity `(s, R, t)` fixed (Umeyama on the stable points), the objective of
+//! [`crate::solver`] is
+//!
+//! ```text
+//! f(e) = s^2 ||D e - b'||^2 + lambda 1^T e + mu ||e - e_prev||^2,    e in [0, 1]^n
+//!      = 1/2 e^T H e - g^T e + const,
+//! H = 2 (s^2 G + mu I),   G = D^T D  (n x n, precomputed once in `new`),
+//! g = 2 s^2 D b' + 2 mu e_prev - lambda 1,
+//! ```
+//!
+//! with `D` the `136 x n` delta matrix and `b' = sim^-1(o) - neutral`. Per frame only `D b'`
+//! (136 n flops) and the box QP ([`crate::qp`], exact, warm-started) are computed. The
+//! alignment is then refitted on the posed shape and the QP re-solved (`alignments` passes).
+//!
+//! | param | default | meaning | range |
+//! |---|---|---|---|
+//! | `objective` | `l1 = 1, temporal = 0` | see [`ObjectiveParams`] | |
+//! | `alignments` | 2 | align/solve passes (pass 2+ aligns the posed shape) | 1-10 |
+//! | `max_iterations` | 100 | QP iteration cap | 1-10000 |
+//! | `kkt_tol` | 1e-10 | relative KKT tolerance | (0, 1e-2] |
+
+use facecap_core::landmarks::Landmarks68;
+
+use crate::basis::Basis2d;
+use crate::error::{check_count, check_range, Result};
+use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
+use crate::solver::{
+    check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason, COORDS,
+};
+
+/// Relative ridge added to the QP Hessian's diagonal so that shapes invisible at the landmarks
+/// (e.g. eye-gaze shapes) keep the reduced Hessian positive definite. Negligible otherwise.
+pub(crate) const RIDGE_REL: f64 = 1e-12;
+
+/// Parameters of [`ExactSolver`] (table in the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExactParams {
+    /// Objective weights.
+    pub objective: ObjectiveParams,
+    /// Align/solve passes.
+    pub alignments: usize,
+    /// QP iteration cap.
+    pub max_iterations: usize,
+    /// Relative KKT tolerance.
+    pub kkt_tol: f64,
+}
+
+impl Default for ExactParams {
+    fn default() -> Self {
+        ExactParams {
+            objective: ObjectiveParams::default(),
+            alignments: 2,
+            max_iterations: 100,
+            kkt_tol: 1e-10,
+        }
+    }
+}
+
+impl ExactParams {
+    /// Validates the table's ranges.
+    pub fn validate(&self) -> Result<()> {
+        self.objective.validate()?;
+        check_count("alignments", self.alignments, 1, 10)?;
+        check_count("max_iterations", self.max_iterations, 1, 10000)?;
+        if !(self.kkt_tol > 0.0) {
+            return Err(crate::Error::invalid(
+                "kkt_tol",
+                self.kkt_tol,
+                "a finite number in (0, 0.01]",
+            ));
+        }
+        check_range("kkt_tol", self.kkt_tol, 0.0, 1e-2)?;
+        Ok(())
+    }
+}
+
+/// The exact bounded 2D solver (see module docs).
+#[derive(Debug, Clone)]
+pub struct ExactSolver {
+    pub(crate) model: Model2d,
+    params: ExactParams,
+    ridge: f64,
+}
+
+/// Scratch buffers of [`ExactSolver`].
+#[derive(Debug, Clone)]
+pub struct ExactWorkspace {
+    pub(crate) frame: Frame2d,
+    h: Vec<f64>,
+    g: Vec<f64>,
+    dtb: Vec<f64>,
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    x: Vec<f64>,
+    scratch: Vec<f64>,
+    qp: QpWorkspace,
+}
+
+impl ExactSolver {
+    /// Validates the parameters and precomputes the Gram matrix.
+    ///
+    /// # Errors
+    /// Invalid parameters (named), empty or non-finite basis.
+    pub fn new(basis: &Basis2d, params: ExactParams) -> Result<Self> {
+        params.validate()?;
+        let model = Model2d::new(basis)?;
+        let maxdiag = (0..model.n).map(|i| model.gram[i * model.n + i]).fold(0.0f64, f64::max);
+        Ok(ExactSolver {
+            ridge: RIDGE_REL * maxdiag.max(1e-300),
+            model,
+            params,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ExactParams {
+        &self.params
+    }
+}
+
+impl ExpressionSolver for ExactSolver {
+    type Workspace = ExactWorkspace;
+
+    fn num_shapes(&self) -> usize {
+        self.model.n
+    }
+
+    fn names(&self) -> &[String] {
+        &self.model.names
+    }
+
+    fn workspace(&self) -> ExactWorkspace {
+        let n = self.model.n;
+        ExactWorkspace {
+            frame: Frame2d::new(),
+            h: vec![0.0; n * n],
+            g: vec![0.0; n],
+            dtb: vec![0.0; n],
+            lo: vec![0.0; n],
+            hi: vec![1.0; n],
+            x: vec![0.0; n],
+            scratch: vec![0.0; COORDS],
+            qp: QpWorkspace::new(n),
+        }
+    }
+
+    fn solve_into(
+        &self,
+        input: &Landmarks68,
+        ws: &mut ExactWorkspace,
+        state: &mut SolveState,
+        out: &mut Solution,
+    ) -> Result<Report> {
+        let m = &self.model;
+        let n = m.n;
+        check_io(n, input, state, out)?;
+        let obj = &self.params.objective;
+        let mu = if state.has_previous { obj.temporal } else { 0.0 };
+        ws.x.copy_from_slice(&state.weights);
+        let opts = QpOptions {
+            max_iterations: self.params.max_iterations,
+            kkt_tol: self.params.kkt_tol,
+        };
+        let mut inner = 0;
+        let mut converged = true;
+        for _pass in 0..self.params.alignments {
+            m.prepare(input, &ws.x, &mut ws.frame)?;
+            let s2 = ws.frame.sim.scale * ws.frame.sim.scale;
+            m.dtb(&ws.frame.target, &mut ws.dtb);
+            for i in 0..n {
+                for j in 0..n {
+                    ws.h[i * n + j] = 2.0 * s2 * m.gram[i * n + j];
+                }
+                ws.h[i * n + i] += 2.0 * mu + self.ridge * s2;
+                ws.g[i] = 2.0 * s2 * ws.dtb[i] + 2.0 * mu * state.weights[i] - obj.l1;
+            }
+            let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.x, &opts, &mut ws.qp);
+            inner += o.iterations;
+            converged = o.converged;
+        }
+        let prev = if mu > 0.0 { Some(state.weights.as_slice()) } else { None };
+        let cost = m.cost(&ws.x, &ws.frame, obj, prev, &mut ws.scratch);
+        out.weights.copy_from_slice(&ws.x);
+        out.similarity = Some(ws.frame.sim);
+        out.pose = None;
+        m.fitted(&ws.x, &ws.frame.sim, &mut ws.scratch, &mut out.fitted);
+        state.weights.copy_from_slice(&ws.x);
+        state.has_previous = true;
+        Ok(Report {
+            iterations: self.params.alignments,
+            evaluations: inner,
+            cost,
+            stop: if converged {
+                StopReason::Converged
+            } else {
+                StopReason::MaxIterations
+            },
+        })
+    }
+}

@@ -1,0 +1,598 @@
+//! 3D-aware solve (ours): perspective camera, joint head pose and blendshape weights.
+//!
+//! Objective (px^2), over the rotation `R`, translation `t` (model units) and `e in [0,1]^n`:
+//!
+//! ```text
+//! F(R, t, e) = sum_j || pi(R X_j(e) + t) - o_j ||^2 + lambda 1^T e + mu ||e - e_prev||^2,
+//! X_j(e) = n_j + sum_i e_i d_ij,     pi(x, y, z) = (fx x / z + cx, fy y / z + cy)
+//! ```
+//!
+//! with the rig in model space (+Y up) and the camera in OpenCV convention (+Y down, +Z
+//! forward), see [`facecap_core::camera`]. Head rotation is explained by `R`, not by "tilt"
+//! shapes (the seed's 2D rotation failure).
+//!
+//! # Method
+//! 1. Start: the previous frame's pose and weights (warm start), else an affine-camera fit
+//!    (linear least squares of a `2 x 4` projection, rows orthonormalised, depth from its scale).
+//! 2. Rigid update: `pose_iterations` Levenberg-Marquardt steps on the 6 pose parameters
+//!    (left-multiplied rotation increment `exp([w]x) R`, `t + dt`), weights fixed.
+//! 3. Bounded QP: the projection is linearised at the current pose and weights,
+//!    `r(z) = r_0 + A_p dp + A_e (e' - e)`, and the convex box QP in `z = (dp, e')` (pose increments
+//!    unbounded, `e' in [0,1]^n`) is solved exactly ([`crate::qp`]). With `joint = false` only `e'`
+//!    is free (pure alternation). The step is accepted with a backtracking search on `F`.
+//! 4. Repeat 2-3 until the relative decrease of `F` is below `tol` (reported as
+//!    [`StopReason::SmallDecrease`]) or `max_alternations` is reached ([`StopReason::MaxIterations`]).
+//!
+//! | param | default | meaning | range |
+//! |---|---|---|---|
+//! | `objective` | `l1 = 1, temporal = 0` | see [`ObjectiveParams`] | |
+//! | `camera` | required | pinhole intrinsics (px); CLI default `fx = fy = max(W, H)`, centre | |
+//! | `max_alternations` | 50 | outer iterations | 1-10000 |
+//! | `pose_iterations` | 2 | LM steps of the rigid update per alternation | 0-100 |
+//! | `tol` | 1e-9 | relative decrease that stops | (0, 1) |
+//! | `joint` | true | pose increments free in the QP step | |
+
+use facecap_core::camera::{Intrinsics, ModelToCamera};
+use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use nalgebra::{
+    Isometry3, Matrix4, Matrix6, Point2, Rotation3, Translation3, UnitQuaternion, Vector3, Vector4, Vector6,
+};
+
+use crate::error::{check_count, check_range, Error, Result};
+use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
+use crate::rig::BlendshapeRig;
+use crate::solver::{check_io, ExpressionSolver, ObjectiveParams, Report, Solution, SolveState, StopReason};
+
+/// Parameters of [`Exact3dSolver`] (table in the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Exact3dParams {
+    /// Objective weights.
+    pub objective: ObjectiveParams,
+    /// Camera intrinsics.
+    pub camera: Intrinsics,
+    /// Outer iterations.
+    pub max_alternations: usize,
+    /// LM steps per rigid update.
+    pub pose_iterations: usize,
+    /// Relative-decrease stop.
+    pub tol: f64,
+    /// Free pose increments in the QP step.
+    pub joint: bool,
+}
+
+impl Exact3dParams {
+    /// Defaults for a camera.
+    pub fn new(camera: Intrinsics) -> Self {
+        Exact3dParams {
+            objective: ObjectiveParams::default(),
+            camera,
+            max_alternations: 50,
+            pose_iterations: 2,
+            tol: 1e-9,
+            joint: true,
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        self.objective.validate()?;
+        let c = &self.camera;
+        Intrinsics::new(c.fx, c.fy, c.cx, c.cy)?;
+        check_count("max_alternations", self.max_alternations, 1, 10000)?;
+        check_count("pose_iterations", self.pose_iterations, 0, 100)?;
+        check_range("tol", self.tol, 0.0, 1.0)?;
+        if self.tol <= 0.0 || self.tol >= 1.0 {
+            return Err(Error::invalid("tol", self.tol, "in (0, 1)"));
+        }
+        Ok(())
+    }
+}
+
+const POSE: usize = 6;
+/// Smallest depth (model units) a landmark may have in front of the camera.
+const MIN_DEPTH: f64 = 1e-6;
+/// Backtracking halvings of the QP step.
+const MAX_HALVINGS: usize = 30;
+
+/// The 3D-aware solver (see module docs).
+#[derive(Debug, Clone)]
+pub struct Exact3dSolver {
+    names: Vec<String>,
+    n: usize,
+    /// Mapped landmark indices.
+    idx: Vec<usize>,
+    /// Neutral points of `idx`.
+    neutral: Vec<Vector3<f64>>,
+    /// Deltas `[j][k]` of `idx`, row-major `m x n`.
+    deltas: Vec<Vector3<f64>>,
+    params: Exact3dParams,
+    ridge: f64,
+}
+
+/// Scratch of [`Exact3dSolver`].
+#[derive(Debug, Clone)]
+pub struct Exact3dWorkspace {
+    /// Posed model points (model frame), `m`.
+    posed: Vec<Vector3<f64>>,
+    /// Observations of mapped points, `2m`.
+    obs: Vec<f64>,
+    /// Residuals, `2m`.
+    r: Vec<f64>,
+    /// Jacobian `2m x (6 + n)` row-major.
+    a: Vec<f64>,
+    h: Vec<f64>,
+    g: Vec<f64>,
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    z: Vec<f64>,
+    e: Vec<f64>,
+    e_trial: Vec<f64>,
+    qp: QpWorkspace,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Pose {
+    r: Rotation3<f64>,
+    t: Vector3<f64>,
+}
+
+impl Pose {
+    fn to_model_to_camera(self) -> ModelToCamera {
+        ModelToCamera(Isometry3::from_parts(
+            Translation3::from(self.t),
+            UnitQuaternion::from_rotation_matrix(&self.r),
+        ))
+    }
+
+    fn from_model_to_camera(p: &ModelToCamera) -> Self {
+        Pose {
+            r: p.0.rotation.to_rotation_matrix(),
+            t: p.0.translation.vector,
+        }
+    }
+
+    fn step(&self, dp: &[f64], alpha: f64) -> Pose {
+        let w = Vector3::new(dp[0], dp[1], dp[2]) * alpha;
+        Pose {
+            r: Rotation3::new(w) * self.r,
+            t: self.t + Vector3::new(dp[3], dp[4], dp[5]) * alpha,
+        }
+    }
+}
+
+impl Exact3dSolver {
+    /// Validates parameters and extracts the mapped landmarks of the rig.
+    pub fn new(rig: &BlendshapeRig, params: Exact3dParams) -> Result<Self> {
+        params.validate()?;
+        let n = rig.num_shapes();
+        if n == 0 {
+            return Err(Error::rig("3D rig", "no shapes"));
+        }
+        let idx: Vec<usize> = (0..NUM_LANDMARKS).filter(|&l| rig.mapped[l]).collect();
+        if idx.len() < 6 {
+            return Err(Error::rig(
+                "3D rig",
+                format!("{} mapped landmarks; at least 6 needed", idx.len()),
+            ));
+        }
+        let neutral: Vec<Vector3<f64>> = idx
+            .iter()
+            .map(|&l| Vector3::new(rig.neutral[[l, 0]], rig.neutral[[l, 1]], rig.neutral[[l, 2]]))
+            .collect();
+        let mut deltas = Vec::with_capacity(idx.len() * n);
+        let mut maxnorm = 0.0f64;
+        for &l in &idx {
+            for k in 0..n {
+                let d = Vector3::new(rig.deltas[[k, l, 0]], rig.deltas[[k, l, 1]], rig.deltas[[k, l, 2]]);
+                maxnorm = maxnorm.max(d.norm_squared());
+                deltas.push(d);
+            }
+        }
+        if neutral
+            .iter()
+            .chain(deltas.iter())
+            .any(|v| !v.iter().all(|x| x.is_finite()))
+        {
+            return Err(Error::rig("3D rig", "non-finite coordinate"));
+        }
+        Ok(Exact3dSolver {
+            names: rig.names.clone(),
+            n,
+            idx,
+            neutral,
+            deltas,
+            params,
+            ridge: 1e-12 * maxnorm.max(1e-300),
+        })
+    }
+
+    /// The camera.
+    pub fn camera(&self) -> &Intrinsics {
+        &self.params.camera
+    }
+
+    fn pose_points(&self, e: &[f64], out: &mut [Vector3<f64>]) {
+        let n = self.n;
+        for (j, o) in out.iter_mut().enumerate() {
+            let mut p = self.neutral[j];
+            for (k, &w) in e.iter().enumerate() {
+                if w != 0.0 {
+                    p += self.deltas[j * n + k] * w;
+                }
+            }
+            *o = p;
+        }
+    }
+
+    /// `F` at (pose, e); `+inf` if a point is behind the camera.
+    fn cost(&self, pose: &Pose, e: &[f64], ws_posed: &mut [Vector3<f64>], obs: &[f64], prev: Option<&[f64]>) -> f64 {
+        self.pose_points(e, ws_posed);
+        let k = &self.params.camera;
+        let mut f = 0.0;
+        for (j, x) in ws_posed.iter().enumerate() {
+            let c = pose.r * x + pose.t;
+            if c.z <= MIN_DEPTH {
+                return f64::INFINITY;
+            }
+            let u = k.fx * c.x / c.z + k.cx - obs[2 * j];
+            let v = k.fy * c.y / c.z + k.cy - obs[2 * j + 1];
+            f += u * u + v * v;
+        }
+        let obj = &self.params.objective;
+        f += obj.l1 * e.iter().sum::<f64>();
+        if let Some(p) = prev {
+            f += obj.temporal * e.iter().zip(p).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+        }
+        f
+    }
+
+    /// Residuals and Jacobian (`2m x (6+n)`) at (pose, e). False if a point is behind the camera.
+    fn linearise(&self, pose: &Pose, ws: &mut Exact3dWorkspace) -> bool {
+        let n = self.n;
+        let cols = POSE + n;
+        let k = &self.params.camera;
+        let e = &ws.e;
+        self.pose_points(e, &mut ws.posed);
+        for (j, x) in ws.posed.iter().enumerate() {
+            let rx = pose.r * x;
+            let c = rx + pose.t;
+            if c.z <= MIN_DEPTH {
+                return false;
+            }
+            let iz = 1.0 / c.z;
+            ws.r[2 * j] = k.fx * c.x * iz + k.cx - ws.obs[2 * j];
+            ws.r[2 * j + 1] = k.fy * c.y * iz + k.cy - ws.obs[2 * j + 1];
+            // d pi / d c
+            let ju = [k.fx * iz, 0.0, -k.fx * c.x * iz * iz];
+            let jv = [0.0, k.fy * iz, -k.fy * c.y * iz * iz];
+            // d c / d w = -[R x]_x
+            let dw = [[0.0, rx.z, -rx.y], [-rx.z, 0.0, rx.x], [rx.y, -rx.x, 0.0]];
+            let (ru, rv) = (2 * j * cols, (2 * j + 1) * cols);
+            for a in 0..3 {
+                ws.a[ru + a] = (0..3).map(|b| ju[b] * dw[b][a]).sum();
+                ws.a[rv + a] = (0..3).map(|b| jv[b] * dw[b][a]).sum();
+                ws.a[ru + 3 + a] = ju[a];
+                ws.a[rv + 3 + a] = jv[a];
+            }
+            for kk in 0..n {
+                let d = pose.r * self.deltas[j * n + kk];
+                ws.a[ru + POSE + kk] = ju[0] * d.x + ju[2] * d.z;
+                ws.a[rv + POSE + kk] = jv[1] * d.y + jv[2] * d.z;
+            }
+        }
+        true
+    }
+
+    /// Affine-camera initial pose for weights `e` (module docs, step 1).
+    fn initial_pose(&self, ws: &mut Exact3dWorkspace) -> Result<Pose> {
+        self.pose_points(&ws.e, &mut ws.posed);
+        let k = &self.params.camera;
+        let mut m = Matrix4::<f64>::zeros();
+        let (mut bu, mut bv) = (Vector4::<f64>::zeros(), Vector4::<f64>::zeros());
+        for (j, x) in ws.posed.iter().enumerate() {
+            let h = Vector4::new(x.x, x.y, x.z, 1.0);
+            m += h * h.transpose();
+            bu += h * ws.obs[2 * j];
+            bv += h * ws.obs[2 * j + 1];
+        }
+        let degenerate = || Error::Input {
+            reason: "landmarks too degenerate for the initial pose".into(),
+        };
+        let chol = m.cholesky().ok_or_else(degenerate)?;
+        let pu = chol.solve(&bu);
+        let pv = chol.solve(&bv);
+        let a1 = Vector3::new(pu[0], pu[1], pu[2]) / k.fx;
+        let a2 = Vector3::new(pv[0], pv[1], pv[2]) / k.fy;
+        let (n1, n2) = (a1.norm(), a2.norm());
+        if !(n1 > 0.0 && n2 > 0.0) || !n1.is_finite() || !n2.is_finite() {
+            return Err(degenerate());
+        }
+        let r1 = a1 / n1;
+        let r2 = a2 - r1 * r1.dot(&a2);
+        let r2n = r2.norm();
+        if !(r2n > 0.0) {
+            return Err(degenerate());
+        }
+        let r2 = r2 / r2n;
+        let r3 = r1.cross(&r2);
+        let rm = nalgebra::Matrix3::from_rows(&[r1.transpose(), r2.transpose(), r3.transpose()]);
+        let z = 2.0 / (n1 + n2);
+        let t = Vector3::new((pu[3] - k.cx) * z / k.fx, (pv[3] - k.cy) * z / k.fy, z);
+        Ok(Pose {
+            r: Rotation3::from_matrix_unchecked(rm),
+            t,
+        })
+    }
+
+    /// Levenberg-Marquardt on the pose only (weights fixed). Returns the new cost.
+    fn rigid_update(&self, pose: &mut Pose, mut cost: f64, prev: Option<&[f64]>, ws: &mut Exact3dWorkspace) -> f64 {
+        let cols = POSE + self.n;
+        let mut damping = 1e-6;
+        for _ in 0..self.params.pose_iterations {
+            if !self.linearise(pose, ws) {
+                break;
+            }
+            let mut jtj = Matrix6::<f64>::zeros();
+            let mut jtr = Vector6::<f64>::zeros();
+            for row in 0..ws.r.len() {
+                let jr = &ws.a[row * cols..row * cols + POSE];
+                for a in 0..POSE {
+                    jtr[a] += jr[a] * ws.r[row];
+                    for b in 0..POSE {
+                        jtj[(a, b)] += jr[a] * jr[b];
+                    }
+                }
+            }
+            let mut improved = false;
+            for _ in 0..8 {
+                let mut lhs = jtj;
+                for a in 0..POSE {
+                    lhs[(a, a)] *= 1.0 + damping;
+                }
+                let Some(ch) = lhs.cholesky() else {
+                    damping *= 10.0;
+                    continue;
+                };
+                let d = ch.solve(&(-jtr));
+                let trial = pose.step(d.as_slice(), 1.0);
+                let c = self.cost(&trial, &ws.e, &mut ws.posed, &ws.obs, prev);
+                if c < cost {
+                    *pose = trial;
+                    cost = c;
+                    damping = (damping * 0.1).max(1e-12);
+                    improved = true;
+                    break;
+                }
+                damping *= 10.0;
+            }
+            if !improved {
+                break;
+            }
+        }
+        cost
+    }
+}
+
+impl ExpressionSolver for Exact3dSolver {
+    type Workspace = Exact3dWorkspace;
+
+    fn num_shapes(&self) -> usize {
+        self.n
+    }
+
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn workspace(&self) -> Exact3dWorkspace {
+        let m = self.idx.len();
+        let n = self.n;
+        let cols = POSE + n;
+        let mut lo = vec![f64::NEG_INFINITY; cols];
+        let mut hi = vec![f64::INFINITY; cols];
+        lo[POSE..].fill(0.0);
+        hi[POSE..].fill(1.0);
+        Exact3dWorkspace {
+            posed: vec![Vector3::zeros(); m],
+            obs: vec![0.0; 2 * m],
+            r: vec![0.0; 2 * m],
+            a: vec![0.0; 2 * m * cols],
+            h: vec![0.0; cols * cols],
+            g: vec![0.0; cols],
+            lo,
+            hi,
+            z: vec![0.0; cols],
+            e: vec![0.0; n],
+            e_trial: vec![0.0; n],
+            qp: QpWorkspace::new(cols),
+        }
+    }
+
+    fn solve_into(
+        &self,
+        input: &Landmarks68,
+        ws: &mut Exact3dWorkspace,
+        state: &mut SolveState,
+        out: &mut Solution,
+    ) -> Result<Report> {
+        let n = self.n;
+        check_io(n, input, state, out)?;
+        let obj = self.params.objective;
+        let mu = if state.has_previous { obj.temporal } else { 0.0 };
+        for (j, &l) in self.idx.iter().enumerate() {
+            ws.obs[2 * j] = input.points[l].x;
+            ws.obs[2 * j + 1] = input.points[l].y;
+        }
+        ws.e.copy_from_slice(&state.weights);
+        let prev_buf = &state.weights;
+        let prev = if mu > 0.0 { Some(prev_buf.as_slice()) } else { None };
+        let mut pose = match (&state.pose, state.has_previous) {
+            (Some(p), true) => Pose::from_model_to_camera(p),
+            _ => self.initial_pose(ws)?,
+        };
+        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, prev);
+        if !cost.is_finite() {
+            pose = self.initial_pose(ws)?;
+            cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, prev);
+            if !cost.is_finite() {
+                return Err(Error::Input {
+                    reason: "no pose puts the face in front of the camera".into(),
+                });
+            }
+        }
+        let cols = POSE + n;
+        let opts = QpOptions::default();
+        let mut stop = StopReason::MaxIterations;
+        let mut iterations = 0;
+        let mut inner = 0;
+        for _ in 0..self.params.max_alternations {
+            iterations += 1;
+            let before = cost;
+            cost = self.rigid_update(&mut pose, cost, prev, ws);
+            if !self.linearise(&pose, ws) {
+                break;
+            }
+            // H = 2 A^T A (+ 2 mu on e), g = -2 A^T c - lambda + 2 mu e_prev, c = r - A_e e
+            let rows = ws.r.len();
+            for row in 0..rows {
+                let mut c = ws.r[row];
+                for kk in 0..n {
+                    c -= ws.a[row * cols + POSE + kk] * ws.e[kk];
+                }
+                ws.r[row] = c;
+            }
+            ws.h.fill(0.0);
+            ws.g.fill(0.0);
+            for row in 0..rows {
+                let ar = &ws.a[row * cols..(row + 1) * cols];
+                let c = ws.r[row];
+                for a in 0..cols {
+                    let va = ar[a];
+                    if va == 0.0 {
+                        continue;
+                    }
+                    ws.g[a] -= 2.0 * va * c;
+                    let hrow = &mut ws.h[a * cols..(a + 1) * cols];
+                    for b in a..cols {
+                        hrow[b] += 2.0 * va * ar[b];
+                    }
+                }
+            }
+            for a in 0..cols {
+                for b in 0..a {
+                    ws.h[a * cols + b] = ws.h[b * cols + a];
+                }
+            }
+            for kk in 0..n {
+                let i = POSE + kk;
+                ws.h[i * cols + i] += 2.0 * mu + self.ridge;
+                ws.g[i] += -obj.l1 + 2.0 * mu * state.weights[kk];
+            }
+            for a in 0..POSE {
+                ws.h[a * cols + a] += self.ridge;
+            }
+            ws.z[..POSE].fill(0.0);
+            ws.z[POSE..].copy_from_slice(&ws.e);
+            if !self.params.joint {
+                ws.lo[..POSE].fill(0.0);
+                ws.hi[..POSE].fill(0.0);
+            }
+            let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.z, &opts, &mut ws.qp);
+            inner += o.iterations;
+            // backtracking on F along the QP step
+            let mut alpha = 1.0;
+            let mut accepted = false;
+            for _ in 0..MAX_HALVINGS {
+                let trial_pose = pose.step(&ws.z[..POSE], alpha);
+                for kk in 0..n {
+                    ws.e_trial[kk] = ws.e[kk] + alpha * (ws.z[POSE + kk] - ws.e[kk]);
+                }
+                let c = self.cost(&trial_pose, &ws.e_trial, &mut ws.posed, &ws.obs, prev);
+                if c < cost {
+                    pose = trial_pose;
+                    ws.e.copy_from_slice(&ws.e_trial);
+                    cost = c;
+                    accepted = true;
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !accepted || before - cost <= self.params.tol * before.abs().max(1e-300) {
+                stop = StopReason::SmallDecrease;
+                break;
+            }
+        }
+        // outputs
+        let k = &self.params.camera;
+        self.pose_points(&ws.e, &mut ws.posed);
+        out.fitted = [Point2::new(f64::NAN, f64::NAN); NUM_LANDMARKS];
+        for (j, &l) in self.idx.iter().enumerate() {
+            let c = pose.r * ws.posed[j] + pose.t;
+            out.fitted[l] = Point2::new(k.fx * c.x / c.z + k.cx, k.fy * c.y / c.z + k.cy);
+        }
+        out.weights.copy_from_slice(&ws.e);
+        out.pose = Some(pose.to_model_to_camera());
+        out.similarity = None;
+        state.weights.copy_from_slice(&ws.e);
+        state.pose = out.pose;
+        state.has_previous = true;
+        Ok(Report {
+            iterations,
+            evaluations: inner,
+            cost,
+            stop,
+        })
+    }
+}
+
+impl Exact3dSolver {
+    /// The objective `F` for given weights and pose (e.g. to score another method's weights
+    /// under the 3D model). `prev` enables the temporal term.
+    pub fn objective(
+        &self,
+        input: &Landmarks68,
+        weights: &[f64],
+        pose: &ModelToCamera,
+        prev: Option<&[f64]>,
+    ) -> Result<f64> {
+        if weights.len() != self.n {
+            return Err(Error::DimensionMismatch {
+                what: "weights".into(),
+                expected: self.n,
+                got: weights.len(),
+            });
+        }
+        let mut posed = vec![Vector3::zeros(); self.idx.len()];
+        let mut obs = vec![0.0; 2 * self.idx.len()];
+        for (j, &l) in self.idx.iter().enumerate() {
+            obs[2 * j] = input.points[l].x;
+            obs[2 * j + 1] = input.points[l].y;
+        }
+        Ok(self.cost(&Pose::from_model_to_camera(pose), weights, &mut posed, &obs, prev))
+    }
+
+    /// The best pose for fixed weights (affine start + rigid LM to convergence) and its
+    /// objective: scores another method's weights under the 3D model.
+    pub fn fit_pose(&self, input: &Landmarks68, weights: &[f64]) -> Result<(ModelToCamera, f64)> {
+        let mut ws = self.workspace();
+        if weights.len() != self.n {
+            return Err(Error::DimensionMismatch {
+                what: "weights".into(),
+                expected: self.n,
+                got: weights.len(),
+            });
+        }
+        ws.e.copy_from_slice(weights);
+        for (j, &l) in self.idx.iter().enumerate() {
+            ws.obs[2 * j] = input.points[l].x;
+            ws.obs[2 * j + 1] = input.points[l].y;
+        }
+        let mut pose = self.initial_pose(&mut ws)?;
+        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, None);
+        let mut s = self.clone();
+        s.params.pose_iterations = 50;
+        for _ in 0..4 {
+            cost = s.rigid_update(&mut pose, cost, None, &mut ws);
+        }
+        Ok((pose.to_model_to_camera(), cost))
+    }
+}

@@ -1,0 +1,83 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+//! The exact box-QP solver against the slow enumerating reference, on seeded random problems.
+
+use facecap_solve::qp::{qp_cost, reference_box_qp, solve_box_qp, QpOptions, QpWorkspace};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn random_problem(rng: &mut ChaCha8Rng, n: usize, rows: usize) -> (Vec<f64>, Vec<f64>) {
+    // H = 2 A^T A (PSD, usually PD), g random
+    let a: Vec<f64> = (0..rows * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let mut h = vec![0.0; n * n];
+    for i in 0..n {
+        for j in 0..n {
+            h[i * n + j] = 2.0 * (0..rows).map(|r| a[r * n + i] * a[r * n + j]).sum::<f64>();
+        }
+        h[i * n + i] += 1e-9;
+    }
+    let g: Vec<f64> = (0..n).map(|_| rng.random_range(-3.0..3.0)).collect();
+    (h, g)
+}
+
+#[test]
+fn matches_reference_on_random_problems() {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut ws = QpWorkspace::new(8);
+    for trial in 0..300 {
+        let n = rng.random_range(1..=6);
+        let rows = rng.random_range(n..n + 6);
+        let (h, g) = random_problem(&mut rng, n, rows);
+        let lo = vec![0.0; n];
+        let hi = vec![1.0; n];
+        let reference = reference_box_qp(&h, &g, &lo, &hi).expect("reference finds a KKT point");
+        let mut x: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+        let o = solve_box_qp(&h, &g, &lo, &hi, &mut x, &QpOptions::default(), &mut ws);
+        assert!(o.converged, "trial {trial}: not converged {o:?}");
+        let (c, cr) = (qp_cost(&h, &g, &x), qp_cost(&h, &g, &reference));
+        assert!(
+            c <= cr + 1e-9 * (1.0 + cr.abs()),
+            "trial {trial}: cost {c} > reference {cr}"
+        );
+        for (a, b) in x.iter().zip(&reference) {
+            assert!(
+                (a - b).abs() < 1e-6,
+                "trial {trial}: x {x:?} vs reference {reference:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn mixed_infinite_bounds_and_rank_deficiency() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut ws = QpWorkspace::new(10);
+    for _ in 0..100 {
+        let n = 6;
+        // rank-deficient: only 3 rows
+        let (mut h, g) = random_problem(&mut rng, n, 3);
+        for i in 0..n {
+            h[i * n + i] += 1e-6;
+        }
+        let lo = [f64::NEG_INFINITY, f64::NEG_INFINITY, 0.0, 0.0, 0.0, 0.0];
+        let hi = [f64::INFINITY, f64::INFINITY, 1.0, 1.0, 1.0, 1.0];
+        let mut x = vec![0.0; n];
+        let o = solve_box_qp(&h, &g, &lo, &hi, &mut x, &QpOptions::default(), &mut ws);
+        assert!(o.converged, "{o:?}");
+        let reference = reference_box_qp(&h, &g, &lo, &hi).unwrap();
+        let (c, cr) = (qp_cost(&h, &g, &x), qp_cost(&h, &g, &reference));
+        assert!(c <= cr + 1e-7 * (1.0 + cr.abs()), "cost {c} vs reference {cr}");
+    }
+}
+
+#[test]
+fn warm_start_from_optimum_takes_no_iteration() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let (h, g) = random_problem(&mut rng, 8, 20);
+    let (lo, hi) = (vec![0.0; 8], vec![1.0; 8]);
+    let mut ws = QpWorkspace::new(8);
+    let mut x = vec![0.5; 8];
+    solve_box_qp(&h, &g, &lo, &hi, &mut x, &QpOptions::default(), &mut ws);
+    let o = solve_box_qp(&h, &g, &lo, &hi, &mut x, &QpOptions::default(), &mut ws);
+    assert_eq!(o.iterations, 0);
+    assert!(o.converged);
+}
