@@ -1,0 +1,885 @@
+//! Fitting the tensor model to 2D image points: pose, expression and identity.
+//!
+//! # Problem (Papanek 2010, sec. 3.4; Vlasic et al. 2005)
+//!
+//! Input: `N` image points `x_k` (pixels, 0-based, see `facecap_core::camera`), each
+//! the image of model vertex `v_k`, with weights `rho_k >= 0` (0 = lost track), and the
+//! camera intrinsics `K`. Unknowns: the pose `(R, t)` ([`ModelToCamera`]), the
+//! database weights `w_id` (`I`) and `w_exp` (`E`) of the generative function
+//! `p_k = m_k + M_k x2 (U_id^T w_id) x3 (U_exp^T w_exp)` ([`crate::model`]).
+//!
+//! **Projection.** Weak perspective as in the thesis: `x_k ~ c + f (R p_k + t)_xy / z`
+//! with one depth `z = z_avg`, the mean depth of the points under the current pose,
+//! updated at every pose step ([`Projection::WeakPerspective`]). With the pose and `z`
+//! fixed the projection is *linear* in `p_k`, so each weight block has a closed form.
+//! [`Projection::PerPointDepth`] uses each point's own depth `z_k` from the previous
+//! pose step instead (a departure from the thesis: exact perspective at convergence,
+//! same cost per sweep).
+//!
+//! **Cost** (model units squared; `q_k = ((x_k - c_x) z_k / f_x, (y_k - c_y) z_k / f_y)`
+//! is the image point lifted to the model's scale):
+//!
+//! `C = sum_k rho~_k ||q_k - (R p_k + t)_xy||^2 + lambda_id ||w_id - w0_id||^2 + lambda_exp ||w_exp - w0_exp||^2`
+//!
+//! with `rho~_k = rho_k / sum rho` and priors `w0` (default: uniform `1/I`, `1/E`,
+//! the average identity / expression).
+//!
+//! **One sweep** (thesis order: pose, expression, identity):
+//! 1. pose by PnP on the current model points (warm-started from the previous pose;
+//!    [`crate::pose`]), then `z`; the step is accepted only if `C` does not increase;
+//! 2. expression in closed form (thesis eq. 3.47):
+//!    with `A` the `2N x r_exp` design (rows `sqrt(rho~_k) R_2 M_k x2 alpha`) and `y` the
+//!    matching residual targets, `beta = (A^T A + lambda_exp I)^{-1} (A^T y + lambda_exp U_exp^T w0_exp)` and
+//!    `w_exp = w0_exp + U_exp (beta - U_exp^T w0_exp)` (the exact minimiser over `w_exp`);
+//!    or with `w_exp >= 0` ([`Method::NonNegative`]) by sequential coordinate-wise NNLS
+//!    ([`crate::nnls`]) on `H = U A^T A U^T + lambda I`, `f = -(U A^T y + lambda w0)`;
+//! 3. identity in the same way (thesis eq. 3.48), unless `update_identity` is off.
+//!
+//! Each block step minimises `C` over its block (or, for the pose, is rejected if it
+//! does not decrease it), so `C` never increases between sweeps. Iteration stops when
+//! the relative decrease is below `tol` or after `max_sweeps`.
+//!
+//! **Sequences** ([`Fitter::fit_sequence`]): one identity for all frames, one
+//! expression and pose per frame, alternating as in the thesis; the cost is the sum of
+//! the frames' data and expression terms plus one identity prior term.
+//!
+//! The per-frame call [`Fitter::solve_into`] does not allocate (tested with a counting
+//! allocator).
+
+use facecap_core::camera::{Intrinsics, ModelToCamera};
+use nalgebra::{Point2, Point3};
+
+use crate::error::{Error, Result};
+use crate::model::TensorModel;
+use crate::nnls;
+use crate::pose;
+
+/// How the weights are constrained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// Ridge-regularised closed form (thesis eqs. 3.47-3.48).
+    Regularised,
+    /// Non-negative database weights (regularised too), sequential coordinate-wise NNLS.
+    NonNegative,
+}
+
+/// Projection model of the weight steps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Projection {
+    /// One depth `z_avg` for all points (thesis).
+    WeakPerspective,
+    /// Each point's own depth from the last pose step (exact perspective at convergence).
+    PerPointDepth,
+}
+
+/// Parameters of the fitter.
+///
+/// | name | default | meaning | range |
+/// |---|---|---|---|
+/// | `lambda_id` | 1e-2 | identity prior weight (model units^2) | >= 0, finite |
+/// | `lambda_exp` | 1e-2 | expression prior weight (model units^2) | >= 0, finite |
+/// | `method` | `Regularised` | closed form or non-negative | |
+/// | `projection` | `WeakPerspective` | weak perspective (thesis) or per-point depth | |
+/// | `max_sweeps` | 30 | maximum pose/expression/identity sweeps | >= 1 |
+/// | `tol` | 1e-7 | stop when the relative cost decrease falls below | >= 0, finite |
+/// | `pose_iterations` | 10 | Levenberg-Marquardt iterations per pose step | >= 1 |
+/// | `nnls_max_iter` | 500 | NNLS passes per block | >= 1 |
+/// | `nnls_tol` | 1e-12 | NNLS KKT tolerance | >= 0, finite |
+/// | `update_identity` | true | whether the identity block is updated | |
+/// | `prior_id` | uniform `1/I` | `w0_id` | finite, length I |
+/// | `prior_exp` | uniform `1/E` | `w0_exp` | finite, length E |
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitParams {
+    /// Identity prior weight.
+    pub lambda_id: f64,
+    /// Expression prior weight.
+    pub lambda_exp: f64,
+    /// Constraint.
+    pub method: Method,
+    /// Projection model.
+    pub projection: Projection,
+    /// Maximum sweeps.
+    pub max_sweeps: usize,
+    /// Relative decrease tolerance.
+    pub tol: f64,
+    /// LM iterations per pose step.
+    pub pose_iterations: usize,
+    /// NNLS passes per block.
+    pub nnls_max_iter: usize,
+    /// NNLS KKT tolerance.
+    pub nnls_tol: f64,
+    /// Update the identity block.
+    pub update_identity: bool,
+    /// Identity prior (None = uniform).
+    pub prior_id: Option<Vec<f64>>,
+    /// Expression prior (None = uniform).
+    pub prior_exp: Option<Vec<f64>>,
+}
+
+impl Default for FitParams {
+    fn default() -> Self {
+        FitParams {
+            lambda_id: 1e-2,
+            lambda_exp: 1e-2,
+            method: Method::Regularised,
+            projection: Projection::WeakPerspective,
+            max_sweeps: 30,
+            tol: 1e-7,
+            pose_iterations: 10,
+            nnls_max_iter: 500,
+            nnls_tol: 1e-12,
+            update_identity: true,
+            prior_id: None,
+            prior_exp: None,
+        }
+    }
+}
+
+/// Why a fit stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stop {
+    /// Relative cost decrease below `tol`.
+    Converged,
+    /// `max_sweeps` reached.
+    MaxSweeps,
+}
+
+/// Outcome of a fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitReport {
+    /// Sweeps done.
+    pub sweeps: usize,
+    /// Cost after the first pose step.
+    pub initial_cost: f64,
+    /// Cost at the end.
+    pub final_cost: f64,
+    /// Largest cost increase seen between consecutive sweeps (<= 0 up to rounding).
+    pub max_increase: f64,
+    /// Why it stopped.
+    pub stop: Stop,
+    /// Weighted RMS perspective reprojection error of the fitted points, pixels.
+    pub rms_px: f64,
+}
+
+/// Per-frame input.
+#[derive(Debug, Clone, Copy)]
+pub struct FitInput<'a> {
+    /// Image points (pixels), one per fitter vertex.
+    pub image: &'a [Point2<f64>],
+    /// Point weights (0 = ignore, e.g. a lost track), one per fitter vertex.
+    pub weights: &'a [f64],
+    /// Camera intrinsics.
+    pub intrinsics: Intrinsics,
+}
+
+/// Warm-startable per-frame state.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitState {
+    /// Identity database weights (`I`).
+    pub w_id: Vec<f64>,
+    /// Expression database weights (`E`).
+    pub w_exp: Vec<f64>,
+    /// Current pose (`None` = not initialised: the first pose step initialises it).
+    pub pose: Option<ModelToCamera>,
+    /// Depth used by the projection for each point (model units).
+    pub depth: Vec<f64>,
+}
+
+/// Scratch buffers of the fitter (sized once by [`Fitter::workspace`]).
+#[derive(Debug, Clone)]
+pub struct FitWorkspace {
+    alpha: Vec<f64>,
+    beta: Vec<f64>,
+    pts: Vec<Point3<f64>>,
+    row0: Vec<f64>,
+    row1: Vec<f64>,
+    tcon: Vec<f64>,
+    h: Vec<f64>,
+    g: Vec<f64>,
+    hdb: Vec<f64>,
+    fdb: Vec<f64>,
+    tmp: Vec<f64>,
+    grad: Vec<f64>,
+    sol: Vec<f64>,
+    depth_backup: Vec<f64>,
+}
+
+/// The fitter: a tensor model restricted to the fitted vertices (immutable, `Send + Sync`).
+#[derive(Debug, Clone)]
+pub struct Fitter {
+    params: FitParams,
+    vertices: Vec<u32>,
+    /// `[N][3][r_id][r_exp]`
+    core: Vec<f64>,
+    /// `[N][3]`
+    mean: Vec<f64>,
+    /// `(I, r_id)` row-major.
+    u_id: Vec<f64>,
+    /// `(E, r_exp)` row-major.
+    u_exp: Vec<f64>,
+    ni: usize,
+    ne: usize,
+    r_id: usize,
+    r_exp: usize,
+    prior_id: Vec<f64>,
+    prior_exp: Vec<f64>,
+    alpha0: Vec<f64>,
+    beta0: Vec<f64>,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Block {
+    Id,
+    Exp,
+}
+
+impl FitParams {
+    /// Validates ranges (see the parameter table).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming the parameter.
+    pub fn validate(&self, ni: usize, ne: usize) -> Result<()> {
+        for (n, v) in [
+            ("lambda_id", self.lambda_id),
+            ("lambda_exp", self.lambda_exp),
+            ("tol", self.tol),
+            ("nnls_tol", self.nnls_tol),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(n, v, "a finite number >= 0"));
+            }
+        }
+        for (n, v) in [
+            ("max_sweeps", self.max_sweeps),
+            ("pose_iterations", self.pose_iterations),
+            ("nnls_max_iter", self.nnls_max_iter),
+        ] {
+            if v == 0 {
+                return Err(Error::invalid(n, v, ">= 1"));
+            }
+        }
+        for (n, p, len) in [("prior_id", &self.prior_id, ni), ("prior_exp", &self.prior_exp, ne)] {
+            if let Some(p) = p {
+                if p.len() != len {
+                    return Err(Error::dim(n, len, p.len()));
+                }
+                if p.iter().any(|x| !x.is_finite()) {
+                    return Err(Error::invalid(n, "non-finite entry", "finite weights"));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Fitter {
+    /// Restricts `model` to `vertices` (the model vertex of each image point).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for a bad parameter, an empty or out-of-range vertex list.
+    pub fn new(model: &TensorModel, vertices: &[u32], params: FitParams) -> Result<Self> {
+        let (ni, ne) = (model.num_identities(), model.num_expressions());
+        params.validate(ni, ne)?;
+        if vertices.len() < 4 {
+            return Err(Error::invalid("number of fitted vertices", vertices.len(), ">= 4"));
+        }
+        let nv = model.num_vertices();
+        if let Some(v) = vertices.iter().find(|&&v| v as usize >= nv) {
+            return Err(Error::invalid("fitted vertex", v, format!("< {nv}")));
+        }
+        let (r_id, r_exp) = (model.rank_id(), model.rank_exp());
+        let blk = r_id * r_exp;
+        let mut core = Vec::with_capacity(vertices.len() * 3 * blk);
+        let mut mean = Vec::with_capacity(vertices.len() * 3);
+        for &v in vertices {
+            for c in 0..3 {
+                let p = 3 * v as usize + c;
+                core.extend(model.core.slice(ndarray::s![p, .., ..]).iter());
+                mean.push(model.mean[p]);
+            }
+        }
+        let prior_id = params.prior_id.clone().unwrap_or_else(|| vec![1.0 / ni as f64; ni]);
+        let prior_exp = params.prior_exp.clone().unwrap_or_else(|| vec![1.0 / ne as f64; ne]);
+        let mut alpha0 = vec![0.0; r_id];
+        let mut beta0 = vec![0.0; r_exp];
+        model.id_modes_into(&prior_id, &mut alpha0);
+        model.exp_modes_into(&prior_exp, &mut beta0);
+        Ok(Fitter {
+            params,
+            vertices: vertices.to_vec(),
+            core,
+            mean,
+            u_id: model.u_id.iter().copied().collect(),
+            u_exp: model.u_exp.iter().copied().collect(),
+            ni,
+            ne,
+            r_id,
+            r_exp,
+            prior_id,
+            prior_exp,
+            alpha0,
+            beta0,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &FitParams {
+        &self.params
+    }
+
+    /// The fitted model vertices.
+    pub fn vertices(&self) -> &[u32] {
+        &self.vertices
+    }
+
+    /// A fresh state: weights at the priors, no pose.
+    pub fn initial_state(&self) -> FitState {
+        FitState {
+            w_id: self.prior_id.clone(),
+            w_exp: self.prior_exp.clone(),
+            pose: None,
+            depth: vec![1.0; self.vertices.len()],
+        }
+    }
+
+    /// Scratch buffers for this fitter.
+    pub fn workspace(&self) -> FitWorkspace {
+        let n = self.vertices.len();
+        let r = self.r_id.max(self.r_exp);
+        let d = self.ni.max(self.ne);
+        FitWorkspace {
+            alpha: vec![0.0; self.r_id],
+            beta: vec![0.0; self.r_exp],
+            pts: vec![Point3::origin(); n],
+            row0: vec![0.0; r],
+            row1: vec![0.0; r],
+            tcon: vec![0.0; 3 * r],
+            h: vec![0.0; r * r],
+            g: vec![0.0; r],
+            hdb: vec![0.0; d * d],
+            fdb: vec![0.0; d],
+            tmp: vec![0.0; d * r],
+            grad: vec![0.0; d],
+            sol: vec![0.0; d.max(r)],
+            depth_backup: vec![0.0; n],
+        }
+    }
+
+    fn check_input(&self, input: &FitInput, state: &FitState) -> Result<()> {
+        let n = self.vertices.len();
+        if input.image.len() != n {
+            return Err(Error::dim("image point count", n, input.image.len()));
+        }
+        if input.weights.len() != n {
+            return Err(Error::dim("point weight count", n, input.weights.len()));
+        }
+        if state.w_id.len() != self.ni || state.w_exp.len() != self.ne || state.depth.len() != n {
+            return Err(Error::dim(
+                "fit state size (use Fitter::initial_state)",
+                self.ni + self.ne + n,
+                state.w_id.len() + state.w_exp.len() + state.depth.len(),
+            ));
+        }
+        let mut used = 0;
+        for (x, &w) in input.image.iter().zip(input.weights) {
+            if !(w.is_finite() && w >= 0.0) {
+                return Err(Error::invalid("point weight", w, "a finite number >= 0"));
+            }
+            if w > 0.0 {
+                if !(x.x.is_finite() && x.y.is_finite()) {
+                    return Err(Error::invalid("image point", format!("({}, {})", x.x, x.y), "finite"));
+                }
+                used += 1;
+            }
+        }
+        if used < 4 {
+            return Err(Error::invalid("number of points with weight > 0", used, ">= 4"));
+        }
+        Ok(())
+    }
+
+    /// Model points for the state's weights into `ws.pts`.
+    fn update_points(&self, state: &FitState, ws: &mut FitWorkspace) {
+        mat_t_vec(&self.u_id, self.ni, self.r_id, &state.w_id, &mut ws.alpha);
+        mat_t_vec(&self.u_exp, self.ne, self.r_exp, &state.w_exp, &mut ws.beta);
+        let blk = self.r_id * self.r_exp;
+        for (k, p) in ws.pts.iter_mut().enumerate() {
+            for c in 0..3 {
+                let row = &self.core[(3 * k + c) * blk..(3 * k + c + 1) * blk];
+                let mut acc = 0.0;
+                for (a, r) in row.chunks_exact(self.r_exp).enumerate() {
+                    acc += ws.alpha[a] * dot(r, &ws.beta);
+                }
+                p[c] = self.mean[3 * k + c] + acc;
+            }
+        }
+    }
+
+    /// Data term for the points in `ws.pts`.
+    fn data_cost(&self, input: &FitInput, pose: &ModelToCamera, depth: &[f64], pts: &[Point3<f64>]) -> f64 {
+        let k = &input.intrinsics;
+        let sw: f64 = input.weights.iter().sum();
+        let mut e = 0.0;
+        for (((p, x), &w), &z) in pts.iter().zip(input.image).zip(input.weights).zip(depth) {
+            if w > 0.0 {
+                let xc = pose.transform(p);
+                let qx = (x.x - k.cx) * z / k.fx;
+                let qy = (x.y - k.cy) * z / k.fy;
+                e += w * ((qx - xc.x).powi(2) + (qy - xc.y).powi(2));
+            }
+        }
+        e / sw
+    }
+
+    fn prior_cost(&self, state: &FitState, with_id: bool) -> f64 {
+        let p_exp: f64 = state
+            .w_exp
+            .iter()
+            .zip(&self.prior_exp)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
+        let mut c = self.params.lambda_exp * p_exp;
+        if with_id {
+            let p_id: f64 = state
+                .w_id
+                .iter()
+                .zip(&self.prior_id)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum();
+            c += self.params.lambda_id * p_id;
+        }
+        c
+    }
+
+    /// The cost `C` of the module docs for a state with a pose.
+    ///
+    /// # Errors
+    /// As [`Self::solve_into`]; [`Error::InvalidParameter`] when the state has no pose.
+    pub fn cost(&self, input: &FitInput, state: &FitState, ws: &mut FitWorkspace) -> Result<f64> {
+        self.check_input(input, state)?;
+        let pose = state
+            .pose
+            .ok_or_else(|| Error::invalid("state pose", "None", "an initialised pose"))?;
+        self.update_points(state, ws);
+        Ok(self.data_cost(input, &pose, &state.depth, &ws.pts) + self.prior_cost(state, true))
+    }
+
+    fn set_depth(&self, input: &FitInput, pose: &ModelToCamera, pts: &[Point3<f64>], depth: &mut [f64]) {
+        for (d, p) in depth.iter_mut().zip(pts) {
+            *d = pose.transform(p).z;
+        }
+        if self.params.projection == Projection::WeakPerspective {
+            let (mut s, mut sw) = (0.0, 0.0);
+            for (d, &w) in depth.iter().zip(input.weights) {
+                if w > 0.0 {
+                    s += w * d;
+                    sw += w;
+                }
+            }
+            let z = s / sw;
+            depth.iter_mut().for_each(|d| *d = z);
+        }
+    }
+
+    /// Pose step; `ws.pts` must hold the current points. Returns the new data cost.
+    fn pose_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
+        let old = state.pose;
+        let mut cand = match old {
+            Some(p) => p,
+            None => pose::init_scaled_orthographic(&ws.pts, input.image, input.weights, &input.intrinsics)?,
+        };
+        pose::refine_perspective(
+            &ws.pts,
+            input.image,
+            input.weights,
+            &input.intrinsics,
+            &mut cand,
+            self.params.pose_iterations,
+        )?;
+        match old {
+            None => {
+                self.set_depth(input, &cand, &ws.pts, &mut state.depth);
+                state.pose = Some(cand);
+            }
+            Some(old_pose) => {
+                let before = self.data_cost(input, &old_pose, &state.depth, &ws.pts);
+                ws.depth_backup.copy_from_slice(&state.depth);
+                self.set_depth(input, &cand, &ws.pts, &mut state.depth);
+                let after = self.data_cost(input, &cand, &state.depth, &ws.pts);
+                if after <= before {
+                    state.pose = Some(cand);
+                } else {
+                    state.depth.copy_from_slice(&ws.depth_backup);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds `scale * (A^T A, A^T y)` of one frame for `block` into `ws.h`, `ws.g`
+    /// (upper triangle of `h` only). The other block's modes must be in `ws.alpha`/`ws.beta`.
+    fn accumulate(&self, block: Block, input: &FitInput, state: &FitState, ws: &mut FitWorkspace, scale: f64) {
+        let Some(pose) = state.pose else { return };
+        let r = match block {
+            Block::Id => self.r_id,
+            Block::Exp => self.r_exp,
+        };
+        let rot = pose.0.rotation.to_rotation_matrix();
+        let rm = rot.matrix();
+        let t = pose.0.translation.vector;
+        let k = &input.intrinsics;
+        let sw: f64 = input.weights.iter().sum();
+        let blk = self.r_id * self.r_exp;
+        for (idx, ((x, &w), &z)) in input.image.iter().zip(input.weights).zip(&state.depth).enumerate() {
+            if w <= 0.0 {
+                continue;
+            }
+            let wk = scale * w / sw;
+            // Contract the core of this point with the fixed block.
+            for c in 0..3 {
+                let core = &self.core[(3 * idx + c) * blk..(3 * idx + c + 1) * blk];
+                let out = &mut ws.tcon[c * r..(c + 1) * r];
+                match block {
+                    Block::Exp => {
+                        out.iter_mut().for_each(|o| *o = 0.0);
+                        for (a, row) in core.chunks_exact(self.r_exp).enumerate() {
+                            let al = ws.alpha[a];
+                            for (o, cv) in out.iter_mut().zip(row) {
+                                *o += al * cv;
+                            }
+                        }
+                    }
+                    Block::Id => {
+                        for (o, row) in out.iter_mut().zip(core.chunks_exact(self.r_exp)) {
+                            *o = dot(row, &ws.beta);
+                        }
+                    }
+                }
+            }
+            let m = [self.mean[3 * idx], self.mean[3 * idx + 1], self.mean[3 * idx + 2]];
+            let qx = (x.x - k.cx) * z / k.fx;
+            let qy = (x.y - k.cy) * z / k.fy;
+            let y0 = qx - (rm[(0, 0)] * m[0] + rm[(0, 1)] * m[1] + rm[(0, 2)] * m[2] + t.x);
+            let y1 = qy - (rm[(1, 0)] * m[0] + rm[(1, 1)] * m[1] + rm[(1, 2)] * m[2] + t.y);
+            for j in 0..r {
+                let (t0, t1, t2) = (ws.tcon[j], ws.tcon[r + j], ws.tcon[2 * r + j]);
+                ws.row0[j] = rm[(0, 0)] * t0 + rm[(0, 1)] * t1 + rm[(0, 2)] * t2;
+                ws.row1[j] = rm[(1, 0)] * t0 + rm[(1, 1)] * t1 + rm[(1, 2)] * t2;
+            }
+            let (r0, r1) = (&ws.row0[..r], &ws.row1[..r]);
+            for i in 0..r {
+                let (a0, a1) = (wk * r0[i], wk * r1[i]);
+                let hrow = &mut ws.h[i * r + i..(i + 1) * r];
+                for ((hv, b0), b1) in hrow.iter_mut().zip(&r0[i..]).zip(&r1[i..]) {
+                    *hv += a0 * b0 + a1 * b1;
+                }
+                ws.g[i] += a0 * y0 + a1 * y1;
+            }
+        }
+    }
+
+    /// Solves the block from `ws.h` (upper triangle of `A^T A`) and `ws.g` with prior
+    /// weight `lambda`, writing the database weights `w`.
+    fn solve_block(&self, block: Block, lambda: f64, w: &mut [f64], ws: &mut FitWorkspace) -> Result<()> {
+        let (u, d, r, prior, mode_prior) = match block {
+            Block::Id => (&self.u_id, self.ni, self.r_id, &self.prior_id, &self.alpha0),
+            Block::Exp => (&self.u_exp, self.ne, self.r_exp, &self.prior_exp, &self.beta0),
+        };
+        let h = &mut ws.h[..r * r];
+        for i in 0..r {
+            for j in 0..i {
+                h[i * r + j] = h[j * r + i];
+            }
+        }
+        match self.params.method {
+            Method::Regularised => {
+                let sol = &mut ws.sol[..r];
+                for i in 0..r {
+                    h[i * r + i] += lambda;
+                    sol[i] = ws.g[i] + lambda * mode_prior[i];
+                }
+                cholesky_solve(h, r, sol)?;
+                // w = w0 + U (beta - beta0)
+                for (row, (wv, p)) in w.iter_mut().zip(prior).enumerate() {
+                    let mut acc = *p;
+                    for k in 0..r {
+                        acc += u[row * r + k] * (sol[k] - mode_prior[k]);
+                    }
+                    *wv = acc;
+                }
+            }
+            Method::NonNegative => {
+                // H_db = U H U^T + lambda I ; f = -(U g + lambda w0)
+                let tmp = &mut ws.tmp[..d * r];
+                for i in 0..d {
+                    for k in 0..r {
+                        let mut acc = 0.0;
+                        for l in 0..r {
+                            acc += u[i * r + l] * h[l * r + k];
+                        }
+                        tmp[i * r + k] = acc;
+                    }
+                }
+                let hdb = &mut ws.hdb[..d * d];
+                for i in 0..d {
+                    for j in 0..d {
+                        hdb[i * d + j] = dot(&tmp[i * r..(i + 1) * r], &u[j * r..(j + 1) * r]);
+                    }
+                    hdb[i * d + i] += lambda;
+                }
+                let fdb = &mut ws.fdb[..d];
+                for i in 0..d {
+                    fdb[i] = -(dot(&u[i * r..(i + 1) * r], &ws.g[..r]) + lambda * prior[i]);
+                }
+                nnls::solve_into(
+                    hdb,
+                    fdb,
+                    w,
+                    &mut ws.grad[..d],
+                    self.params.nnls_max_iter,
+                    self.params.nnls_tol,
+                );
+            }
+        }
+        Ok(())
+    }
+
+    fn clear_normal(&self, block: Block, ws: &mut FitWorkspace) {
+        let r = match block {
+            Block::Id => self.r_id,
+            Block::Exp => self.r_exp,
+        };
+        ws.h[..r * r].iter_mut().for_each(|v| *v = 0.0);
+        ws.g[..r].iter_mut().for_each(|v| *v = 0.0);
+    }
+
+    fn exp_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
+        self.update_points(state, ws); // refresh alpha/beta
+        self.clear_normal(Block::Exp, ws);
+        self.accumulate(Block::Exp, input, state, ws, 1.0);
+        let mut w = std::mem::take(&mut state.w_exp);
+        let res = self.solve_block(Block::Exp, self.params.lambda_exp, &mut w, ws);
+        state.w_exp = w;
+        res
+    }
+
+    /// Fits one frame, warm-started from `state`. Does not allocate.
+    ///
+    /// # Errors
+    /// [`Error::DimensionMismatch`] for wrong input or state sizes,
+    /// [`Error::InvalidParameter`] for non-finite points, negative weights or fewer than 4
+    /// weighted points; [`Error::Numerical`] for degenerate geometry.
+    pub fn solve_into(&self, input: &FitInput, ws: &mut FitWorkspace, state: &mut FitState) -> Result<FitReport> {
+        self.check_input(input, state)?;
+        self.update_points(state, ws);
+        self.pose_step(input, state, ws)?;
+        let mut cost = self.cost_inner(input, state, ws, true);
+        let initial = cost;
+        let mut max_increase = f64::NEG_INFINITY;
+        let mut stop = Stop::MaxSweeps;
+        let mut sweeps = 0;
+        for s in 0..self.params.max_sweeps {
+            sweeps = s + 1;
+            if s > 0 {
+                self.update_points(state, ws);
+                self.pose_step(input, state, ws)?;
+            }
+            self.exp_step(input, state, ws)?;
+            if self.params.update_identity {
+                self.update_points(state, ws);
+                self.clear_normal(Block::Id, ws);
+                self.accumulate(Block::Id, input, state, ws, 1.0);
+                let mut w = std::mem::take(&mut state.w_id);
+                let res = self.solve_block(Block::Id, self.params.lambda_id, &mut w, ws);
+                state.w_id = w;
+                res?;
+            }
+            let new = self.cost_inner(input, state, ws, true);
+            max_increase = max_increase.max(new - cost);
+            let rel = (cost - new) / cost.max(1e-300);
+            cost = new;
+            if rel <= self.params.tol {
+                stop = Stop::Converged;
+                break;
+            }
+        }
+        self.update_points(state, ws);
+        let rms_px = state
+            .pose
+            .map(|p| pose::reprojection_rms(&ws.pts, input.image, input.weights, &input.intrinsics, &p))
+            .unwrap_or(f64::NAN);
+        Ok(FitReport {
+            sweeps,
+            initial_cost: initial,
+            final_cost: cost,
+            max_increase,
+            stop,
+            rms_px,
+        })
+    }
+
+    fn cost_inner(&self, input: &FitInput, state: &FitState, ws: &mut FitWorkspace, with_id: bool) -> f64 {
+        self.update_points(state, ws);
+        match state.pose {
+            Some(p) => self.data_cost(input, &p, &state.depth, &ws.pts) + self.prior_cost(state, with_id),
+            None => f64::INFINITY,
+        }
+    }
+
+    /// Fits a sequence: one identity shared by all frames (written to every state's
+    /// `w_id`), one expression and pose per frame. `states` must have one entry per frame;
+    /// the identity is taken from `states[0]` at the start.
+    ///
+    /// # Errors
+    /// As [`Self::solve_into`]; [`Error::DimensionMismatch`] when `states` and `frames` differ in length.
+    pub fn fit_sequence(
+        &self,
+        frames: &[FitInput],
+        states: &mut [FitState],
+        ws: &mut FitWorkspace,
+    ) -> Result<FitReport> {
+        if frames.len() != states.len() {
+            return Err(Error::dim("number of frame states", frames.len(), states.len()));
+        }
+        if frames.is_empty() {
+            return Err(Error::invalid("number of frames", 0, ">= 1"));
+        }
+        for (f, s) in frames.iter().zip(states.iter()) {
+            self.check_input(f, s)?;
+        }
+        let w_id0 = states[0].w_id.clone();
+        for s in states.iter_mut() {
+            s.w_id.copy_from_slice(&w_id0);
+        }
+        let seq_cost = |states: &[FitState], ws: &mut FitWorkspace| -> f64 {
+            let mut c = 0.0;
+            for (f, s) in frames.iter().zip(states) {
+                c += self.cost_inner(f, s, ws, false);
+            }
+            let p_id: f64 = states[0]
+                .w_id
+                .iter()
+                .zip(&self.prior_id)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum();
+            c + self.params.lambda_id * p_id
+        };
+        for (f, s) in frames.iter().zip(states.iter_mut()) {
+            self.update_points(s, ws);
+            self.pose_step(f, s, ws)?;
+        }
+        let mut cost = seq_cost(states, ws);
+        let initial = cost;
+        let mut max_increase = f64::NEG_INFINITY;
+        let mut stop = Stop::MaxSweeps;
+        let mut sweeps = 0;
+        let mut w_id = w_id0;
+        for s_i in 0..self.params.max_sweeps {
+            sweeps = s_i + 1;
+            for (f, s) in frames.iter().zip(states.iter_mut()) {
+                if s_i > 0 {
+                    self.update_points(s, ws);
+                    self.pose_step(f, s, ws)?;
+                }
+                self.exp_step(f, s, ws)?;
+            }
+            if self.params.update_identity {
+                self.clear_normal(Block::Id, ws);
+                for (f, s) in frames.iter().zip(states.iter()) {
+                    self.update_points(s, ws);
+                    self.accumulate(Block::Id, f, s, ws, 1.0);
+                }
+                self.solve_block(Block::Id, self.params.lambda_id, &mut w_id, ws)?;
+                for s in states.iter_mut() {
+                    s.w_id.copy_from_slice(&w_id);
+                }
+            }
+            let new = seq_cost(states, ws);
+            max_increase = max_increase.max(new - cost);
+            let rel = (cost - new) / cost.max(1e-300);
+            cost = new;
+            if rel <= self.params.tol {
+                stop = Stop::Converged;
+                break;
+            }
+        }
+        let mut rms = 0.0;
+        for (f, s) in frames.iter().zip(states.iter()) {
+            self.update_points(s, ws);
+            if let Some(p) = s.pose {
+                rms += pose::reprojection_rms(&ws.pts, f.image, f.weights, &f.intrinsics, &p).powi(2);
+            }
+        }
+        Ok(FitReport {
+            sweeps,
+            initial_cost: initial,
+            final_cost: cost,
+            max_increase,
+            stop,
+            rms_px: (rms / frames.len() as f64).sqrt(),
+        })
+    }
+
+    /// The fitted model points of the last [`Self::solve_into`] state (for reprojection).
+    pub fn points_into(&self, state: &FitState, ws: &mut FitWorkspace, out: &mut Vec<Point3<f64>>) {
+        self.update_points(state, ws);
+        out.clear();
+        out.extend_from_slice(&ws.pts);
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `out = U^T w` for row-major `u` of shape `(rows, cols)`.
+fn mat_t_vec(u: &[f64], rows: usize, cols: usize, w: &[f64], out: &mut [f64]) {
+    out.iter_mut().for_each(|o| *o = 0.0);
+    for r in 0..rows {
+        let wr = w[r];
+        for (o, uv) in out.iter_mut().zip(&u[r * cols..(r + 1) * cols]) {
+            *o += uv * wr;
+        }
+    }
+}
+
+/// In-place Cholesky solve of the symmetric positive definite `a` (`n x n`, row-major,
+/// overwritten) with right-hand side `b` (overwritten by the solution).
+pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> Result<()> {
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= a[j * n + k] * a[j * n + k];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return Err(Error::Numerical {
+                operation: "fit normal equations",
+                reason: format!("matrix not positive definite at pivot {j} (use lambda > 0 or more points)"),
+            });
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = s / d;
+        }
+    }
+    for i in 0..n {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= a[i * n + k] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut s = b[i];
+        for k in i + 1..n {
+            s -= a[k * n + i] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    Ok(())
+}

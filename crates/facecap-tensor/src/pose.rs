@@ -1,0 +1,266 @@
+//! Rigid pose from 3D model points and their 2D images (PnP), allocation-free.
+//!
+//! A temporary solver of this crate until `facecap_core::pnp` lands: a scaled
+//! orthographic (weak-perspective) initialisation by linear least squares, as in
+//! POSIT's first step (DeMenthon & Davis 1995), then Levenberg-Marquardt on the full
+//! perspective reprojection error in pixels with the rotation updated
+//! multiplicatively (`R <- exp([w]x) R`).
+//!
+//! Conventions: [`ModelToCamera`] maps model to camera space (`X_c = R X_m + t`),
+//! camera +Z forward, pixels 0-based (see `facecap_core::camera`). Points with weight
+//! 0 are ignored (lost tracks).
+
+use facecap_core::camera::{Intrinsics, ModelToCamera};
+use nalgebra::{
+    Isometry3, Matrix2x3, Matrix3, Matrix6, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6,
+};
+
+use crate::error::{Error, Result};
+
+/// Initial Levenberg-Marquardt damping (relative to the Gauss-Newton diagonal).
+const LM_LAMBDA0: f64 = 1e-3;
+/// Smallest depth accepted for a point in front of the camera (model units).
+const MIN_DEPTH: f64 = 1e-9;
+
+/// Scaled-orthographic pose from weighted correspondences.
+///
+/// # Errors
+/// [`Error::Numerical`] when fewer than 4 weighted points are given or the points are
+/// degenerate (collinear); [`Error::DimensionMismatch`] for unequal slice lengths.
+pub fn init_scaled_orthographic(
+    model: &[Point3<f64>],
+    image: &[Point2<f64>],
+    weights: &[f64],
+    k: &Intrinsics,
+) -> Result<ModelToCamera> {
+    check(model, image, weights)?;
+    let mut sw = 0.0;
+    let mut pm = Vector3::zeros();
+    let mut um = nalgebra::Vector2::zeros();
+    let mut used = 0;
+    for ((p, x), &w) in model.iter().zip(image).zip(weights) {
+        if w > 0.0 {
+            sw += w;
+            pm += w * p.coords;
+            um += w * nalgebra::Vector2::new((x.x - k.cx) / k.fx, (x.y - k.cy) / k.fy);
+            used += 1;
+        }
+    }
+    if used < 4 || sw <= 0.0 {
+        return Err(Error::Numerical {
+            operation: "pose init",
+            reason: format!("{used} weighted points, need >= 4"),
+        });
+    }
+    pm /= sw;
+    um /= sw;
+    let mut c = Matrix3::zeros();
+    let mut b = Matrix2x3::zeros();
+    for ((p, x), &w) in model.iter().zip(image).zip(weights) {
+        if w > 0.0 {
+            let dp = p.coords - pm;
+            let du = nalgebra::Vector2::new((x.x - k.cx) / k.fx, (x.y - k.cy) / k.fy) - um;
+            c += w * dp * dp.transpose();
+            b += w * du * dp.transpose();
+        }
+    }
+    // Tiny ridge for nearly planar point sets.
+    let ridge = 1e-12 * c.trace().max(1e-300);
+    let cinv = (c + Matrix3::identity() * ridge)
+        .try_inverse()
+        .ok_or_else(|| Error::Numerical {
+            operation: "pose init",
+            reason: "model points are degenerate".into(),
+        })?;
+    let m = b * cinv;
+    let svd = m.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return Err(Error::Numerical {
+            operation: "pose init",
+            reason: "SVD failed".into(),
+        });
+    };
+    let s = 0.5 * (svd.singular_values[0] + svd.singular_values[1]);
+    if !(s.is_finite() && s > 0.0) {
+        return Err(Error::Numerical {
+            operation: "pose init",
+            reason: "points are degenerate (zero scale)".into(),
+        });
+    }
+    let r2 = u * vt; // 2x3 with orthonormal rows
+    let r1v = Vector3::new(r2[(0, 0)], r2[(0, 1)], r2[(0, 2)]);
+    let r2v = Vector3::new(r2[(1, 0)], r2[(1, 1)], r2[(1, 2)]);
+    let r3v = r1v.cross(&r2v);
+    let rot = Matrix3::from_rows(&[r1v.transpose(), r2v.transpose(), r3v.transpose()]);
+    let rot = Rotation3::from_matrix(&rot);
+    let rp = rot * pm;
+    let tz = 1.0 / s;
+    let t = Vector3::new(um.x * tz - rp.x, um.y * tz - rp.y, tz - rp.z);
+    Ok(ModelToCamera(Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    )))
+}
+
+/// Weighted RMS reprojection error (pixels) of `pose`.
+pub fn reprojection_rms(
+    model: &[Point3<f64>],
+    image: &[Point2<f64>],
+    weights: &[f64],
+    k: &Intrinsics,
+    pose: &ModelToCamera,
+) -> f64 {
+    let (mut e, mut sw) = (0.0, 0.0);
+    for ((p, x), &w) in model.iter().zip(image).zip(weights) {
+        if w > 0.0 {
+            let xc = pose.transform(p);
+            let z = xc.z.max(MIN_DEPTH);
+            let r = nalgebra::Vector2::new(k.fx * xc.x / z + k.cx - x.x, k.fy * xc.y / z + k.cy - x.y);
+            e += w * r.norm_squared();
+            sw += w;
+        }
+    }
+    if sw > 0.0 {
+        (e / sw).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// Levenberg-Marquardt refinement of `pose` on the perspective reprojection error.
+/// Returns the number of iterations done.
+///
+/// # Errors
+/// [`Error::DimensionMismatch`] for unequal slice lengths.
+pub fn refine_perspective(
+    model: &[Point3<f64>],
+    image: &[Point2<f64>],
+    weights: &[f64],
+    k: &Intrinsics,
+    pose: &mut ModelToCamera,
+    max_iter: usize,
+) -> Result<usize> {
+    check(model, image, weights)?;
+    let cost = |pose: &ModelToCamera| {
+        let mut e = 0.0;
+        for ((p, x), &w) in model.iter().zip(image).zip(weights) {
+            if w > 0.0 {
+                let xc = pose.transform(p);
+                let z = xc.z.max(MIN_DEPTH);
+                let r = nalgebra::Vector2::new(k.fx * xc.x / z + k.cx - x.x, k.fy * xc.y / z + k.cy - x.y);
+                e += w * r.norm_squared();
+            }
+        }
+        e
+    };
+    let mut lambda = LM_LAMBDA0;
+    let mut cur = cost(pose);
+    let mut it = 0;
+    while it < max_iter {
+        it += 1;
+        let mut h = Matrix6::<f64>::zeros();
+        let mut g = Vector6::<f64>::zeros();
+        for ((p, x), &w) in model.iter().zip(image).zip(weights) {
+            if w <= 0.0 {
+                continue;
+            }
+            let rp = pose.0.rotation * p.coords;
+            let xc = rp + pose.0.translation.vector;
+            let z = xc.z.max(MIN_DEPTH);
+            let iz = 1.0 / z;
+            let r = nalgebra::Vector2::new(k.fx * xc.x * iz + k.cx - x.x, k.fy * xc.y * iz + k.cy - x.y);
+            // d pixel / d X_c
+            let dpi = Matrix2x3::new(
+                k.fx * iz,
+                0.0,
+                -k.fx * xc.x * iz * iz,
+                0.0,
+                k.fy * iz,
+                -k.fy * xc.y * iz * iz,
+            );
+            // d X_c / d omega = -[R p]x ; d X_c / d t = I
+            let skew = Matrix3::new(0.0, rp.z, -rp.y, -rp.z, 0.0, rp.x, rp.y, -rp.x, 0.0);
+            let jw = dpi * skew;
+            let mut j = nalgebra::Matrix2x6::<f64>::zeros();
+            j.fixed_view_mut::<2, 3>(0, 0).copy_from(&jw);
+            j.fixed_view_mut::<2, 3>(0, 3).copy_from(&dpi);
+            h += w * j.transpose() * j;
+            g += w * j.transpose() * r;
+        }
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut hd = h;
+            for d in 0..6 {
+                hd[(d, d)] += lambda * h[(d, d)].max(1e-12);
+            }
+            let Some(step) = hd.cholesky().map(|c| c.solve(&(-g))) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let dw = Vector3::new(step[0], step[1], step[2]);
+            let dt = Vector3::new(step[3], step[4], step[5]);
+            let cand = ModelToCamera(Isometry3::from_parts(
+                Translation3::from(pose.0.translation.vector + dt),
+                UnitQuaternion::from_scaled_axis(dw) * pose.0.rotation,
+            ));
+            let c = cost(&cand);
+            if c <= cur {
+                let rel = (cur - c) / cur.max(1e-300);
+                *pose = cand;
+                cur = c;
+                lambda = (lambda * 0.1).max(1e-12);
+                improved = true;
+                if rel < 1e-12 || step.norm() < 1e-12 {
+                    return Ok(it);
+                }
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Ok(it)
+}
+
+fn check(model: &[Point3<f64>], image: &[Point2<f64>], weights: &[f64]) -> Result<()> {
+    if image.len() != model.len() {
+        return Err(Error::dim("image point count", model.len(), image.len()));
+    }
+    if weights.len() != model.len() {
+        return Err(Error::dim("point weight count", model.len(), weights.len()));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn recovers_a_random_pose() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let k = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap_or_else(|_| unreachable!());
+        let model: Vec<Point3<f64>> = (0..68)
+            .map(|_| {
+                Point3::new(
+                    rng.random_range(-7.0..7.0),
+                    rng.random_range(-9.0..9.0),
+                    rng.random_range(-3.0..3.0),
+                )
+            })
+            .collect();
+        let truth = ModelToCamera::from_rvec_tvec(Vector3::new(0.2, -0.3, 0.1), Vector3::new(1.0, -2.0, 60.0));
+        let image: Vec<Point2<f64>> = model
+            .iter()
+            .map(|p| truth.project(&k, p).unwrap_or(Point2::origin()))
+            .collect();
+        let w = vec![1.0; 68];
+        let mut pose = init_scaled_orthographic(&model, &image, &w, &k).unwrap_or_else(|_| unreachable!());
+        refine_perspective(&model, &image, &w, &k, &mut pose, 30).unwrap_or_else(|_| unreachable!());
+        assert!(reprojection_rms(&model, &image, &w, &k, &pose) < 1e-6);
+        assert!((pose.tvec() - truth.tvec()).norm() < 1e-6);
+    }
+}
