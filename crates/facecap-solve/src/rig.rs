@@ -284,15 +284,22 @@ impl BlendshapeRig {
 
     /// A seeded synthetic rig for tests and examples: a plausible 68-point face (cm, +Y up,
     /// +Z towards the viewer, about 14 cm wide) and `n` localised expression deltas, each moving
-    /// one region (brows, eyes, mouth, jaw, cycling) by up to ~1.5 cm.
+    /// one region (brows, eyelids, mouth, jaw without its ends; cycling) by up to ~1.5 cm.
     pub fn synthetic(n: usize, seed: u64) -> Self {
         let neutral = synthetic_face();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let regions: [std::ops::Range<usize>; 4] = [17..27, 36..48, 48..68, 0..17];
+        // regions avoid the stable alignment points (jaw ends, nose, eye corners), as real
+        // expressions barely move them
+        let regions: [Vec<usize>; 4] = [
+            (17..27).collect(),
+            vec![37, 38, 40, 41, 43, 44, 46, 47],
+            (48..68).collect(),
+            (3..14).collect(),
+        ];
         let mut deltas = Array3::zeros((n, NUM_LANDMARKS, 3));
         let mut names = Vec::with_capacity(n);
         for k in 0..n {
-            let r = regions[k % regions.len()].clone();
+            let r = &regions[k % regions.len()];
             names.push(format!("{}_{k}", ["brow", "eye", "mouth", "jaw"][k % 4]));
             // a smooth displacement: random direction field varying linearly across the region
             let base = Vector3::new(
@@ -307,7 +314,7 @@ impl BlendshapeRig {
             );
             let amp: f64 = rng.random_range(0.5..1.5);
             let len = r.len() as f64;
-            for (j, l) in r.enumerate() {
+            for (j, &l) in r.iter().enumerate() {
                 let s = j as f64 / (len - 1.0).max(1.0) - 0.5;
                 let d = (base + grad * (2.0 * s)) * amp;
                 for c in 0..3 {

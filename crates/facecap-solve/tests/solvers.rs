@@ -1,0 +1,234 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+//! Guarantees of the five solvers on seeded synthetic ground truth.
+
+use facecap_core::camera::Intrinsics;
+use facecap_core::landmarks::Landmarks68;
+use facecap_solve::synth::{generate, rmse, SynthParams};
+use facecap_solve::{
+    Basis2d, BlendshapeRig, BobyqaParams, BobyqaSolver, Exact3dParams, Exact3dSolver, ExactParams, ExactSolver,
+    ExpressionSolver, PcaParams, PcaSolver, RegionParams, RegionSolver, Solution, SolveState, StopReason,
+};
+
+/// Frontal orthographic landmarks of the rig at weights `e`: 25 px per unit, rotated by `angle`.
+fn frontal_landmarks(rig: &BlendshapeRig, e: &[f64], angle: f64) -> Landmarks68 {
+    let (c, s) = (angle.cos(), angle.sin());
+    Landmarks68::from_fn(|l| {
+        let p = rig.landmark(l, e);
+        let (x, y) = (25.0 * p.x, -25.0 * p.y);
+        (320.0 + c * x - s * y, 240.0 + s * x + c * y)
+    })
+}
+
+fn sparse_weights(n: usize, seed: u64) -> Vec<f64> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut w = vec![0.0; n];
+    for _ in 0..4 {
+        w[rng.random_range(0..n)] = rng.random_range(0.2..1.0);
+    }
+    w
+}
+
+fn run<S: ExpressionSolver>(s: &S, lm: &Landmarks68) -> (Solution, facecap_solve::Report) {
+    let mut ws = s.workspace();
+    let mut st = SolveState::new(s.num_shapes());
+    let mut out = Solution::new(s.num_shapes());
+    let r = s.solve_into(lm, &mut ws, &mut st, &mut out).unwrap();
+    (out, r)
+}
+
+#[test]
+fn exact_recovers_weights_in_2d() {
+    let rig = BlendshapeRig::synthetic(16, 5);
+    let basis = Basis2d::frontal(&rig);
+    let solver = ExactSolver::new(&basis, ExactParams::default()).unwrap();
+    for seed in 0..10 {
+        let w = sparse_weights(16, seed);
+        let lm = frontal_landmarks(&rig, &w, 0.2);
+        let (out, rep) = run(&solver, &lm);
+        assert_eq!(rep.stop, StopReason::Converged);
+        assert!(rmse(&out.weights, &w) < 0.01, "seed {seed}: {:?} vs {w:?}", out.weights);
+        assert!(out.reprojection_error(&lm) < 0.2);
+    }
+}
+
+#[test]
+fn exact_objective_never_above_bobyqa() {
+    // same objective (alignments = 1, L1 = 1, no temporal): the exact optimum is <= BOBYQA's
+    let rig = BlendshapeRig::synthetic(16, 9);
+    let basis = Basis2d::frontal(&rig);
+    let exact = ExactSolver::new(
+        &basis,
+        ExactParams {
+            alignments: 1,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let bob = BobyqaSolver::new(&basis, BobyqaParams::default()).unwrap();
+    for seed in 0..15 {
+        let w = sparse_weights(16, 100 + seed);
+        let mut lm = frontal_landmarks(&rig, &w, -0.1);
+        for (i, p) in lm.points.iter_mut().enumerate() {
+            p.x += ((i * 7 + seed as usize) % 5) as f64 * 0.3 - 0.6;
+        }
+        let (oe, re) = run(&exact, &lm);
+        let (ob, rb) = run(&bob, &lm);
+        assert!(re.cost <= rb.cost + 1e-9 * rb.cost.abs(), "seed {seed}: exact {} > bobyqa {}", re.cost, rb.cost);
+        assert!(rb.evaluations > 33, "BOBYQA evaluated {} times", rb.evaluations);
+        assert!(rmse(&oe.weights, &ob.weights) < 0.2);
+    }
+}
+
+#[test]
+fn region_and_pca_fit_reasonably() {
+    let rig = BlendshapeRig::synthetic(16, 5);
+    let basis = Basis2d::frontal(&rig);
+    let region = RegionSolver::new(&basis, RegionParams::default()).unwrap();
+    assert!(region.group_names().len() >= 2);
+    let pca = PcaSolver::new(&basis, PcaParams::default()).unwrap();
+    assert!(pca.num_components() <= 16);
+    for seed in 0..5 {
+        let w = sparse_weights(16, 200 + seed);
+        let lm = frontal_landmarks(&rig, &w, 0.05);
+        let (op, _) = run(&pca, &lm);
+        assert!(rmse(&op.weights, &w) < 0.02, "pca seed {seed}");
+        let (or, _) = run(&region, &lm);
+        assert!(or.weights.iter().all(|&x| (0.0..=1.0).contains(&x)));
+        assert!(or.reprojection_error(&lm) < 5.0, "region error {}", or.reprojection_error(&lm));
+    }
+}
+
+#[test]
+fn temporal_term_pulls_towards_previous_frame() {
+    let rig = BlendshapeRig::synthetic(8, 2);
+    let basis = Basis2d::frontal(&rig);
+    let mk = |mu| {
+        ExactSolver::new(
+            &basis,
+            ExactParams {
+                objective: facecap_solve::ObjectiveParams { l1: 1.0, temporal: mu },
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    };
+    let (s0, s1) = (mk(0.0), mk(1e6));
+    let w0 = vec![0.0; 8];
+    let mut w1 = vec![0.0; 8];
+    w1[3] = 0.8;
+    for (s, expect_move) in [(&s0, true), (&s1, false)] {
+        let mut ws = s.workspace();
+        let mut st = SolveState::new(8);
+        let mut out = Solution::new(8);
+        s.solve_into(&frontal_landmarks(&rig, &w0, 0.0), &mut ws, &mut st, &mut out).unwrap();
+        s.solve_into(&frontal_landmarks(&rig, &w1, 0.0), &mut ws, &mut st, &mut out).unwrap();
+        assert_eq!(out.weights[3] > 0.5, expect_move, "{:?}", out.weights);
+    }
+}
+
+fn camera() -> Intrinsics {
+    Intrinsics::default_for_frame(640, 480).unwrap()
+}
+
+#[test]
+fn exact3d_recovers_pose_and_weights_and_beats_bobyqa() {
+    let rig = BlendshapeRig::synthetic(16, 21);
+    let cam = camera();
+    let frames = generate(&rig, &cam, 640.0, &SynthParams::default(), 20, 4);
+    let s3 = Exact3dSolver::new(&rig, Exact3dParams::new(cam)).unwrap();
+    let bob = BobyqaSolver::new(&Basis2d::frontal(&rig), BobyqaParams::default()).unwrap();
+    let mut sum = 0.0;
+    for (i, f) in frames.iter().enumerate() {
+        let (o3, r3) = run(&s3, &f.landmarks);
+        assert_ne!(r3.stop, StopReason::MaxIterations, "frame {i}");
+        let e = rmse(&o3.weights, &f.weights);
+        sum += e;
+        assert!(e < 0.02, "frame {i}: rmse {e}, {:?} vs {:?}", o3.weights, f.weights);
+        let pose = o3.pose.unwrap();
+        let ang = (pose.0.rotation.inverse() * f.pose.0.rotation).angle().to_degrees();
+        assert!(ang < 0.5, "frame {i}: rotation error {ang} deg");
+        // BOBYQA's weights scored under the 3D model with their best pose
+        let (ob, _) = run(&bob, &f.landmarks);
+        let (_, fb) = s3.fit_pose(&f.landmarks, &ob.weights).unwrap();
+        assert!(r3.cost <= fb + 1e-9 * fb, "frame {i}: exact3d {} > bobyqa {fb}", r3.cost);
+    }
+    eprintln!("mean weight RMSE exact3d: {}", sum / frames.len() as f64);
+}
+
+#[test]
+fn exact3d_tracks_with_warm_start() {
+    let rig = BlendshapeRig::synthetic(12, 3);
+    let cam = camera();
+    let frames = generate(
+        &rig,
+        &cam,
+        640.0,
+        &SynthParams {
+            noise_px: 0.5,
+            ..Default::default()
+        },
+        10,
+        8,
+    );
+    let s3 = Exact3dSolver::new(&rig, Exact3dParams::new(cam)).unwrap();
+    let mut ws = s3.workspace();
+    let mut st = SolveState::new(12);
+    let mut out = Solution::new(12);
+    for f in &frames {
+        let r = s3.solve_into(&f.landmarks, &mut ws, &mut st, &mut out).unwrap();
+        assert!(r.cost.is_finite());
+        assert!(rmse(&out.weights, &f.weights) < 0.1);
+        assert!(out.reprojection_error(&f.landmarks) < 2.0);
+    }
+}
+
+#[test]
+fn invalid_inputs_and_params_are_errors() {
+    let rig = BlendshapeRig::synthetic(4, 1);
+    let basis = Basis2d::frontal(&rig);
+    let bad = ExactParams {
+        objective: facecap_solve::ObjectiveParams { l1: f64::NAN, temporal: 0.0 },
+        ..Default::default()
+    };
+    let e = ExactSolver::new(&basis, bad).unwrap_err().to_string();
+    assert!(e.contains("l1"), "{e}");
+    assert!(ExactSolver::new(
+        &basis,
+        ExactParams {
+            alignments: 0,
+            ..Default::default()
+        }
+    )
+    .is_err());
+    assert!(BobyqaSolver::new(
+        &basis,
+        BobyqaParams {
+            npt: Some(2),
+            ..Default::default()
+        }
+    )
+    .is_err());
+    let s = ExactSolver::new(&basis, ExactParams::default()).unwrap();
+    let mut lm = frontal_landmarks(&rig, &[0.0; 4], 0.0);
+    lm.points[3].x = f64::NAN;
+    let mut ws = s.workspace();
+    let mut st = SolveState::new(4);
+    let mut out = Solution::new(4);
+    assert!(s.solve_into(&lm, &mut ws, &mut st, &mut out).is_err());
+    let mut st5 = SolveState::new(5);
+    let lm = frontal_landmarks(&rig, &[0.0; 4], 0.0);
+    assert!(s.solve_into(&lm, &mut ws, &mut st5, &mut out).is_err());
+    // all landmarks at one point: degenerate alignment
+    let lm = Landmarks68::from_fn(|_| (5.0, 5.0));
+    assert!(s.solve_into(&lm, &mut ws, &mut st, &mut out).is_err());
+    let bad_groups = RegionParams {
+        groups: Some(vec![facecap_solve::RegionGroup {
+            name: "x".into(),
+            landmarks: vec![70],
+            shapes: vec![0],
+        }]),
+        ..Default::default()
+    };
+    assert!(RegionSolver::new(&basis, bad_groups).is_err());
+}
