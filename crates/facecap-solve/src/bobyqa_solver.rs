@@ -243,3 +243,54 @@ impl ExpressionSolver for BobyqaSolver {
 fn unreachable_engine(n: usize) -> bobyqa::Bobyqa {
     panic!("BOBYQA workspace allocation failed for n = {n}")
 }
+
+/// Two-pass BOBYQA (the passes of [`BobyqaParams`]) on any objective over the box
+/// `[lo, hi]`, starting from `x` (overwritten with the result). Returns the final value and the
+/// total number of evaluations. Allocates the engines on every call: for tests and one-off
+/// problems; the per-frame solver keeps them in its workspace.
+///
+/// # Errors
+/// Invalid parameters or bounds (BOBYQA needs `hi - lo >= 2 rho_begin`).
+pub fn bobyqa_two_pass(
+    mut f: impl FnMut(&[f64]) -> f64,
+    x: &mut [f64],
+    lo: &[f64],
+    hi: &[f64],
+    params: &BobyqaParams,
+) -> Result<(f64, usize, StopReason)> {
+    let n = x.len();
+    if lo.len() != n || hi.len() != n {
+        return Err(Error::DimensionMismatch {
+            what: "bounds".into(),
+            expected: n,
+            got: lo.len().min(hi.len()),
+        });
+    }
+    for i in 0..n {
+        if !(hi[i] - lo[i] >= 2.0 * params.rho_begin) {
+            return Err(Error::invalid(
+                "bounds",
+                format!("[{}, {}] for variable {i}", lo[i], hi[i]),
+                "hi - lo >= 2 rho_begin",
+            ));
+        }
+    }
+    let npt = params.validate(n)?;
+    let (mut evals, mut fval, mut stop) = (0, f64::NAN, StopReason::RhoEnd);
+    for rho_end in params.rho_end {
+        let mut c = bobyqa::Config::new(n);
+        c.npt = npt;
+        c.rho_begin = params.rho_begin;
+        c.rho_end = rho_end;
+        c.max_fun = params.max_evals;
+        let mut engine =
+            bobyqa::Bobyqa::new(n, c).map_err(|s| Error::invalid("bobyqa configuration", s, "a valid BOBYQA setup"))?;
+        let o = engine.minimize(&mut f, x, lo, hi);
+        evals += o.n_eval;
+        fval = o.f;
+        if o.status == bobyqa::Status::MaxFunReached {
+            stop = StopReason::MaxIterations;
+        }
+    }
+    Ok((fval, evals, stop))
+}

@@ -77,27 +77,62 @@ fn no_allocation_per_frame() {
     let obj = ObjectiveParams { l1: 1.0, temporal: 2.0 };
     count_allocs(
         "exact",
-        &ExactSolver::new(&basis, ExactParams { objective: obj, ..Default::default() }).unwrap(),
+        &ExactSolver::new(
+            &basis,
+            ExactParams {
+                objective: obj,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
         &frames,
     );
     count_allocs(
         "exact3d",
-        &Exact3dSolver::new(&rig, Exact3dParams { objective: obj, ..Exact3dParams::new(cam) }).unwrap(),
+        &Exact3dSolver::new(
+            &rig,
+            Exact3dParams {
+                objective: obj,
+                ..Exact3dParams::new(cam)
+            },
+        )
+        .unwrap(),
         &frames,
     );
     count_allocs(
         "bobyqa",
-        &BobyqaSolver::new(&basis, BobyqaParams { objective: obj, ..Default::default() }).unwrap(),
+        &BobyqaSolver::new(
+            &basis,
+            BobyqaParams {
+                objective: obj,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
         &frames,
     );
     count_allocs(
         "region",
-        &RegionSolver::new(&basis, RegionParams { objective: obj, ..Default::default() }).unwrap(),
+        &RegionSolver::new(
+            &basis,
+            RegionParams {
+                objective: obj,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
         &frames,
     );
     count_allocs(
         "pca",
-        &PcaSolver::new(&basis, PcaParams { objective: obj, ..Default::default() }).unwrap(),
+        &PcaSolver::new(
+            &basis,
+            PcaParams {
+                objective: obj,
+                ..Default::default()
+            },
+        )
+        .unwrap(),
         &frames,
     );
 }

@@ -10,7 +10,9 @@ use nalgebra::{Point3, Vector3};
 fn tiny_mesh(nv: usize, names: &[&str]) -> MorphMesh {
     MorphMesh {
         base: Mesh {
-            positions: (0..nv).map(|i| Point3::new(i as f32, (i * i % 7) as f32, (i % 3) as f32)).collect(),
+            positions: (0..nv)
+                .map(|i| Point3::new(i as f32, (i * i % 7) as f32, (i % 3) as f32))
+                .collect(),
             triangles: vec![[0, 1, 2]],
             normals: vec![],
             uvs: vec![],
@@ -20,7 +22,9 @@ fn tiny_mesh(nv: usize, names: &[&str]) -> MorphMesh {
             .enumerate()
             .map(|(k, n)| MorphTarget {
                 name: n.to_string(),
-                deltas: (0..nv).map(|i| Vector3::new(((i + k) % 5) as f32 * 0.1, 0.0, 0.0)).collect(),
+                deltas: (0..nv)
+                    .map(|i| Vector3::new(((i + k) % 5) as f32 * 0.1, 0.0, 0.0))
+                    .collect(),
             })
             .collect(),
     }
@@ -37,7 +41,7 @@ fn morph_mesh_rig_and_errors() {
     assert_eq!(rig.num_shapes(), 2);
     assert_eq!(rig.num_mapped(), 68);
     assert!((rig.deltas[[1, 4, 0]] - 0.0).abs() < 1e-6); // (4+1)%5 = 0
-    // map beyond the vertex count
+                                                         // map beyond the vertex count
     let e = BlendshapeRig::from_morph_mesh(tiny_mesh(50, &["a"]), &identity_map(), "small").unwrap_err();
     assert!(e.to_string().contains("small"), "{e}");
     // mismatched delta count
@@ -105,7 +109,12 @@ fn shapes2d_round_trip_and_alignment() {
     let back = Shapes2d::load(&p).unwrap();
     // serde_json parses decimals to within one ulp (no float_roundtrip feature)
     assert_eq!(back.shapes[0].name, s.shapes[0].name);
-    let close = |a: &[[f64; 2]], b: &[[f64; 2]]| a.iter().flatten().zip(b.iter().flatten()).all(|(x, y)| (x - y).abs() < 1e-9);
+    let close = |a: &[[f64; 2]], b: &[[f64; 2]]| {
+        a.iter()
+            .flatten()
+            .zip(b.iter().flatten())
+            .all(|(x, y)| (x - y).abs() < 1e-9)
+    };
     assert!(close(&back.neutral, &s.neutral) && close(&back.shapes[0].landmarks, &s.shapes[0].landmarks));
     let basis = Basis2d::from_shapes2d(&back).unwrap();
     // the similarity removes scale and shift; the stable points carry no delta
@@ -118,7 +127,10 @@ fn shapes2d_round_trip_and_alignment() {
 fn shapes2d_rejects_every_truncation_and_bad_content() {
     let text = example_shapes().to_json_string().unwrap();
     for cut in (0..text.len()).step_by(97) {
-        assert!(Shapes2d::from_json_str(&text[..cut]).is_err(), "accepted truncation at {cut}");
+        assert!(
+            Shapes2d::from_json_str(&text[..cut]).is_err(),
+            "accepted truncation at {cut}"
+        );
     }
     assert!(Shapes2d::from_json_str(&text.replace("facecap-shapes2d", "other")).is_err());
     let mut s = example_shapes();

@@ -74,7 +74,12 @@ fn exact_objective_never_above_bobyqa() {
         }
         let (oe, re) = run(&exact, &lm);
         let (ob, rb) = run(&bob, &lm);
-        assert!(re.cost <= rb.cost + 1e-9 * rb.cost.abs(), "seed {seed}: exact {} > bobyqa {}", re.cost, rb.cost);
+        assert!(
+            re.cost <= rb.cost + 1e-9 * rb.cost.abs(),
+            "seed {seed}: exact {} > bobyqa {}",
+            re.cost,
+            rb.cost
+        );
         assert!(rb.evaluations > 33, "BOBYQA evaluated {} times", rb.evaluations);
         assert!(rmse(&oe.weights, &ob.weights) < 0.2);
     }
@@ -95,7 +100,11 @@ fn region_and_pca_fit_reasonably() {
         assert!(rmse(&op.weights, &w) < 0.02, "pca seed {seed}");
         let (or, _) = run(&region, &lm);
         assert!(or.weights.iter().all(|&x| (0.0..=1.0).contains(&x)));
-        assert!(or.reprojection_error(&lm) < 5.0, "region error {}", or.reprojection_error(&lm));
+        assert!(
+            or.reprojection_error(&lm) < 5.0,
+            "region error {}",
+            or.reprojection_error(&lm)
+        );
     }
 }
 
@@ -121,8 +130,10 @@ fn temporal_term_pulls_towards_previous_frame() {
         let mut ws = s.workspace();
         let mut st = SolveState::new(8);
         let mut out = Solution::new(8);
-        s.solve_into(&frontal_landmarks(&rig, &w0, 0.0), &mut ws, &mut st, &mut out).unwrap();
-        s.solve_into(&frontal_landmarks(&rig, &w1, 0.0), &mut ws, &mut st, &mut out).unwrap();
+        s.solve_into(&frontal_landmarks(&rig, &w0, 0.0), &mut ws, &mut st, &mut out)
+            .unwrap();
+        s.solve_into(&frontal_landmarks(&rig, &w1, 0.0), &mut ws, &mut st, &mut out)
+            .unwrap();
         assert_eq!(out.weights[3] > 0.5, expect_move, "{:?}", out.weights);
     }
 }
@@ -151,7 +162,11 @@ fn exact3d_recovers_pose_and_weights_and_beats_bobyqa() {
         // BOBYQA's weights scored under the 3D model with their best pose
         let (ob, _) = run(&bob, &f.landmarks);
         let (_, fb) = s3.fit_pose(&f.landmarks, &ob.weights).unwrap();
-        assert!(r3.cost <= fb + 1e-9 * fb, "frame {i}: exact3d {} > bobyqa {fb}", r3.cost);
+        assert!(
+            r3.cost <= fb + 1e-9 * fb,
+            "frame {i}: exact3d {} > bobyqa {fb}",
+            r3.cost
+        );
     }
     eprintln!("mean weight RMSE exact3d: {}", sum / frames.len() as f64);
 }
@@ -188,7 +203,10 @@ fn invalid_inputs_and_params_are_errors() {
     let rig = BlendshapeRig::synthetic(4, 1);
     let basis = Basis2d::frontal(&rig);
     let bad = ExactParams {
-        objective: facecap_solve::ObjectiveParams { l1: f64::NAN, temporal: 0.0 },
+        objective: facecap_solve::ObjectiveParams {
+            l1: f64::NAN,
+            temporal: 0.0,
+        },
         ..Default::default()
     };
     let e = ExactSolver::new(&basis, bad).unwrap_err().to_string();
