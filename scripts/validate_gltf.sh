@@ -6,7 +6,8 @@
 # Installs the npm package `gltf-validator` (pinned below) into
 # ${FACECAP_CACHE:-$HOME/.cache/facecap}/npm on first use and runs it with node.
 # Prints one summary line per file (errors / warnings / infos / hints) and the
-# messages of severity error and warning. Exits 0 when no file has errors,
+# messages of severity error and warning (all messages with
+# VALIDATE_GLTF_VERBOSE=1). Exits 0 when no file has errors,
 # 1 when some file has errors, 2 on usage or setup problems (node/npm missing).
 set -euo pipefail
 
@@ -46,6 +47,8 @@ const fs = require('fs');
 const path = require('path');
 const validator = require('gltf-validator');
 
+const verbose = process.env.VALIDATE_GLTF_VERBOSE === '1';
+
 async function main(files) {
   let failed = false;
   for (const file of files) {
@@ -70,8 +73,8 @@ async function main(files) {
     const s = report.issues;
     console.log(`${file}: errors=${s.numErrors} warnings=${s.numWarnings} infos=${s.numInfos} hints=${s.numHints}`);
     for (const m of s.messages) {
-      if (m.severity <= 1) {
-        const sev = m.severity === 0 ? 'ERROR' : 'WARNING';
+      if (m.severity <= 1 || verbose) {
+        const sev = ['ERROR', 'WARNING', 'INFO', 'HINT'][m.severity] || 'NOTE';
         console.log(`  ${sev} ${m.code} ${m.pointer || ''}: ${m.message}`);
       }
     }

@@ -573,3 +573,96 @@ fn obj_writer_rejects_invalid_meshes() {
     assert!(write_obj(&p, &m).is_err());
     assert!(!p.exists());
 }
+
+/// Negative control: the validator script really fails on a broken file (POSITION
+/// accessor without `min`/`max`, animation times not increasing).
+#[test]
+fn validator_script_rejects_a_broken_file() {
+    let test = "validator_script_rejects_a_broken_file";
+    let have = |tool: &str| {
+        Command::new(tool)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if !have("node") || !have("npm") {
+        eprintln!("SKIP: {test}: node/npm not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("broken.gltf");
+    let rig = synthetic_rig(3, 3, 2, 1);
+    write_gltf(&p, &rig, Some(&synthetic_animation(3, 2, 30.0, 1))).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    let pos = v["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+        .as_u64()
+        .unwrap() as usize;
+    v["accessors"][pos].as_object_mut().unwrap().remove("min");
+    std::fs::write(&p, serde_json::to_string(&v).unwrap()).unwrap();
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/validate_gltf.sh");
+    let out = Command::new("bash").arg(&script).arg(&p).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{stdout}");
+    match out.status.code() {
+        Some(2) => eprintln!("SKIP: {test}: validator unavailable"),
+        Some(1) => assert!(stdout.contains("errors="), "{stdout}"),
+        other => panic!("validator accepted a broken file ({other:?}):\n{stdout}"),
+    }
+}
+
+/// Timing of the I/O on the ICT rig (not a criterion bench: run on demand with
+/// `cargo test -p facecap-core --release --test mesh_io -- --ignored --nocapture io_timings`;
+/// figures go to docs/bench/core_io.md).
+#[test]
+#[ignore]
+fn io_timings() {
+    use std::time::Instant;
+    let test = "io_timings";
+    let (Some(glb), Some(obj)) = (
+        shared_data_file(test, "models3d/ict_facekit/ict_face_arkit53.glb"),
+        shared_data_file(test, "models3d/ict_facekit/generic_neutral_mesh.obj"),
+    ) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let reps = 5;
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let time = |f: &mut dyn FnMut()| {
+        median(
+            (0..reps)
+                .map(|_| {
+                    let t = Instant::now();
+                    f();
+                    t.elapsed().as_secs_f64() * 1e3
+                })
+                .collect(),
+        )
+    };
+    let mut rig = None;
+    let t_read = time(&mut || rig = Some(read_morph_mesh(&glb).unwrap()));
+    let rig = rig.unwrap();
+    let anim = synthetic_animation(300, rig.targets.len(), 30.0, 1);
+    let out = dir.path().join("ict.glb");
+    let t_vec = time(&mut || {
+        std::hint::black_box(glb_to_vec(&rig, Some(&anim)).unwrap());
+    });
+    let t_write = time(&mut || write_glb(&out, &rig, Some(&anim)).unwrap());
+    let size = std::fs::metadata(&out).unwrap().len();
+    let t_obj = time(&mut || {
+        std::hint::black_box(read_obj(&obj).unwrap());
+    });
+    let outobj = dir.path().join("ict.obj");
+    let m = read_obj(&obj).unwrap();
+    let t_wobj = time(&mut || write_obj(&outobj, &m).unwrap());
+    eprintln!(
+        "ICT arkit53 ({} vertices, {} targets): read_morph_mesh {t_read:.1} ms; \
+         glb_to_vec with 300 keyframes {t_vec:.1} ms; write_glb (atomic, fsync) {t_write:.1} ms, {size} bytes; \
+         read_obj ICT neutral ({} vertices) {t_obj:.1} ms; write_obj {t_wobj:.1} ms (median of {reps})",
+        rig.base.num_vertices(),
+        rig.targets.len(),
+        m.num_vertices()
+    );
+}
