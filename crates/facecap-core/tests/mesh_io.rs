@@ -657,6 +657,37 @@ fn io_timings() {
     let outobj = dir.path().join("ict.obj");
     let m = read_obj(&obj).unwrap();
     let t_wobj = time(&mut || write_obj(&outobj, &m).unwrap());
+    // Per-frame CSV row: 136 landmark + 6 pose + 53 weight columns.
+    let mut cols = facecap_core::csv::landmark_columns();
+    cols.extend(facecap_core::csv::POSE_COLUMNS.iter().map(|s| s.to_string()));
+    cols.extend(rig.target_names().iter().map(|s| s.to_string()));
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let values: Vec<f64> = (0..cols.len()).map(|_| rng.random_range(0.0..640.0)).collect();
+    let rows = 3000u64;
+    let mut row_ms = Vec::new();
+    let t_csv = time(&mut || {
+        let mut w = facecap_core::csv::FrameCsvWriter::create(dir.path().join("t.csv"), &cols).unwrap();
+        let t = Instant::now();
+        for f in 0..rows {
+            w.write_row(&facecap_core::csv::FrameRow {
+                frame: f,
+                timestamp: f as f64 / 30.0,
+                success: true,
+                confidence: 0.97,
+                values: &values,
+            })
+            .unwrap();
+        }
+        row_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        w.finish().unwrap();
+    });
+    let csv_bytes = std::fs::metadata(dir.path().join("t.csv")).unwrap().len();
+    let rows_only = median(row_ms);
+    eprintln!(
+        "CSV: {} columns, {rows} rows ({csv_bytes} bytes): write_row {:.1} us/row; create + rows + finish (fsync) {t_csv:.1} ms",
+        cols.len() + 4,
+        rows_only * 1e3 / rows as f64
+    );
     eprintln!(
         "ICT arkit53 ({} vertices, {} targets): read_morph_mesh {t_read:.1} ms; \
          glb_to_vec with 300 keyframes {t_vec:.1} ms; write_glb (atomic, fsync) {t_write:.1} ms, {size} bytes; \
