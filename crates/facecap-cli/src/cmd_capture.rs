@@ -1,15 +1,653 @@
-//! `facecap capture`.
+//! `facecap capture VIDEO... --out DIR`: video in; landmarks, head pose, blendshape
+//! weights, optional muscle contractions and tensor parameters, an animated rig and a
+//! report out.
+//!
+//! Per video, in `DIR/<video-stem>/`: `landmarks.csv`, `pose.csv`, `weights.csv`
+//! (named columns), `livelink.csv` (Live Link Face layout, when the rig's shape names
+//! are ARKit names), `contractions.csv` (with `--muscles`), `tensor.csv` (with
+//! `--tensor`), `animation.glb`, `obj/frame_NNNNNN.obj` (with `--obj`), `report.html`
+//! with its images, and `summary.json`, written **last**: a folder without it is not a
+//! finished capture, and reruns skip only folders that have it (unless `--force`).
+//! Every file is written atomically (temporary file + rename), so an interrupt or a
+//! crash never leaves a half-written file under a final name.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use facecap_core::camera::{Intrinsics, ModelToCamera};
+use facecap_core::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow, POSE_COLUMNS};
+use facecap_core::gltf_io::MorphAnimation;
+use facecap_core::landmark_map::LandmarkMap;
+use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_core::mesh::MorphMesh;
+use facecap_core::video::{open_source, Frame, SourceOptions};
+use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
+use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, Solution, SolveState};
+use image::{GrayImage, RgbImage};
+use rayon::prelude::*;
+use serde_json::json;
+
+use crate::report;
 
 /// Arguments of `facecap capture`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Input files.
-    pub inputs: Vec<PathBuf>,
+    /// Input videos (files, Y4M, or folders of images).
+    #[arg(required = true)]
+    pub videos: Vec<PathBuf>,
+    /// Output folder; each video gets `DIR/<video-stem>/`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Blendshape rig (glTF/GLB with morph targets). Default: the built-in rig.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// Landmark map of `--rig` (JSON: `vertex_by_ibug_0based`, or a list of 68 ids).
+    #[arg(long)]
+    pub landmark_map: Option<PathBuf>,
+    /// Expression solver.
+    #[arg(long, default_value = "exact", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
+    pub solver: String,
+    /// Muscle set JSON, or `default` for the built-in 11-muscle set.
+    #[arg(long)]
+    pub muscles: Option<String>,
+    /// Tensor model file (from `facecap tensor build`).
+    #[arg(long)]
+    pub tensor: Option<PathBuf>,
+    /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Also write one OBJ per frame.
+    #[arg(long)]
+    pub obj: bool,
+    /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`).
+    #[arg(long, default_value_t = 0.0)]
+    pub temporal: f64,
+    /// Turn the landmark jitter filter (One Euro) off.
+    #[arg(long)]
+    pub no_filter: bool,
+    /// Redo videos that already have a finished capture.
+    #[arg(long)]
+    pub force: bool,
+    /// Videos processed at once (default: number of cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Number of frames on the report's contact sheet.
+    #[arg(long, default_value_t = 12)]
+    pub sheet_frames: usize,
+    /// No progress output.
+    #[arg(long)]
+    pub quiet: bool,
+    /// Print a JSON summary of all videos on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// The solver's time-aligned per-frame output kept for the animation and report.
+#[derive(Debug, Clone)]
+struct FrameOut {
+    timestamp: f64,
+    success: bool,
+    confidence: f64,
+    landmarks: Option<Landmarks68>,
+    weights: Vec<f64>,
+    pose: Option<ModelToCamera>,
+    reprojection_px: f64,
+}
+
+/// Everything shared by all videos.
+struct Setup {
+    rig_mesh: MorphMesh,
+    rig: BlendshapeRig,
+    rig_name: String,
+    method: Method,
+    objective: ObjectiveParams,
+    camera: Option<Intrinsics>,
+    tracker: LandmarkTracker<facecap_landmarks::detect::FaceDetector, facecap_landmarks::ert::ShapePredictor>,
+    muscles: Option<crate::capture_extras::MuscleSetup>,
+    tensor: Option<crate::capture_extras::TensorSetup>,
+    args_echo: serde_json::Value,
+}
+
+fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--camera {s:?}: expected four numbers fx,fy,cx,cy"))?;
+    if v.len() != 4 {
+        anyhow::bail!("--camera {s:?}: expected four numbers fx,fy,cx,cy, got {}", v.len());
+    }
+    Ok(Intrinsics::new(v[0], v[1], v[2], v[3])?)
+}
+
+fn build_setup(args: &Args) -> anyhow::Result<Setup> {
+    let method: Method = args.solver.parse()?;
+    if !(args.temporal.is_finite() && args.temporal >= 0.0) {
+        anyhow::bail!("--temporal must be finite and >= 0, got {}", args.temporal);
+    }
+    let (rig_mesh, map, rig_name) = match &args.rig {
+        Some(path) => {
+            let map_path = args
+                .landmark_map
+                .as_ref()
+                .ok_or_else(|| anyhow::anyhow!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"))?;
+            let mesh = facecap_core::gltf_io::read_morph_mesh(path)?;
+            let map = LandmarkMap::from_json_file(map_path)?;
+            (mesh, map, path.display().to_string())
+        }
+        None => {
+            let (mesh, map) = crate::default_rig::default_rig()?;
+            (mesh, map, "built-in default rig".to_string())
+        }
+    };
+    let rig = BlendshapeRig::from_morph_mesh(rig_mesh.clone(), &map, &rig_name)?;
+    let objective = ObjectiveParams { temporal: args.temporal, ..ObjectiveParams::default() };
+    objective.validate()?;
+    let camera = args.camera.as_deref().map(parse_camera).transpose()?;
+    let detector = facecap_landmarks::detect::FaceDetector::default_model()?;
+    let ert_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
+        anyhow::anyhow!("{} is not in the model cache: run scripts/setup.sh", facecap_core::paths::DLIB_68_MODEL)
+    })?;
+    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&ert_path)?;
+    let mut tracker_params = TrackerParams::default();
+    if args.no_filter {
+        tracker_params.filter = None;
+    }
+    let tracker = LandmarkTracker::new(detector, ert, tracker_params)?;
+    let muscles = args
+        .muscles
+        .as_deref()
+        .map(|m| crate::capture_extras::MuscleSetup::new(m, &rig_mesh, &map))
+        .transpose()?;
+    let tensor = args.tensor.as_deref().map(crate::capture_extras::TensorSetup::new).transpose()?;
+    let args_echo = json!({
+        "rig": rig_name,
+        "solver": method.name(),
+        "temporal": args.temporal,
+        "filter": !args.no_filter,
+        "camera": args.camera,
+        "muscles": args.muscles,
+        "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
+        "obj": args.obj,
+    });
+    Ok(Setup {
+        rig_mesh,
+        rig,
+        rig_name,
+        method,
+        objective,
+        camera,
+        tracker,
+        muscles,
+        tensor,
+        args_echo,
+    })
+}
+
+/// Outcome of one video.
+#[derive(Debug)]
+enum Outcome {
+    Done(serde_json::Value),
+    Skipped(PathBuf),
+    Failed(String),
 }
 
 /// Runs `facecap capture`.
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
-    anyhow::bail!("facecap capture is not implemented yet ({} inputs)", args.inputs.len())
+    let interrupted = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupted.clone();
+        // A second Ctrl-C exits at once; temporary files are then left under
+        // `.name.tmp-PID` names, never under final names.
+        let _ = ctrlc::set_handler(move || {
+            if flag.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let setup = build_setup(&args)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build()?;
+    let progress = crate::progress::Progress::new(args.quiet);
+    let t0 = Instant::now();
+    let outcomes: Vec<(PathBuf, Outcome)> = pool.install(|| {
+        args.videos
+            .par_iter()
+            .map(|video| {
+                let out_dir = args.out.join(video_stem(video));
+                let outcome = if out_dir.join("summary.json").is_file() && !args.force {
+                    progress.line(&format!("skip {} (finished capture in {}; --force redoes it)", video.display(), out_dir.display()));
+                    Outcome::Skipped(out_dir)
+                } else {
+                    match capture_one(video, &out_dir, &args, &setup, &interrupted, &progress) {
+                        Ok(v) => Outcome::Done(v),
+                        Err(e) => {
+                            progress.line(&format!("FAILED {}: {e:#}", video.display()));
+                            Outcome::Failed(format!("{e:#}"))
+                        }
+                    }
+                };
+                (video.clone(), outcome)
+            })
+            .collect()
+    });
+    let mut all_ok = true;
+    let mut report = Vec::new();
+    for (video, o) in &outcomes {
+        match o {
+            Outcome::Done(v) => report.push(json!({"video": video, "status": "done", "summary": v})),
+            Outcome::Skipped(d) => report.push(json!({"video": video, "status": "skipped", "out": d})),
+            Outcome::Failed(e) => {
+                all_ok = false;
+                report.push(json!({"video": video, "status": "failed", "error": e}))
+            }
+        }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}))?);
+    } else if !args.quiet {
+        for (video, o) in &outcomes {
+            match o {
+                Outcome::Done(v) => println!(
+                    "{}: {} frames, face on {}, {:.1} frames/s -> {}",
+                    video.display(),
+                    v["frames"],
+                    v["faces_found"],
+                    v["frames_per_second"].as_f64().unwrap_or(0.0),
+                    args.out.join(video_stem(video)).display()
+                ),
+                Outcome::Skipped(d) => println!("{}: skipped (already captured in {})", video.display(), d.display()),
+                Outcome::Failed(e) => println!("{}: FAILED: {e}", video.display()),
+            }
+        }
+    }
+    if interrupted.load(Ordering::SeqCst) {
+        eprintln!("interrupted: unfinished captures were discarded");
+        return Ok(std::process::ExitCode::from(130));
+    }
+    Ok(if all_ok { std::process::ExitCode::SUCCESS } else { std::process::ExitCode::FAILURE })
+}
+
+fn video_stem(p: &Path) -> String {
+    p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "video".into())
+}
+
+/// Per-stage wall times in seconds.
+#[derive(Debug, Default, Clone, Copy)]
+struct Timings {
+    decode: f64,
+    track: f64,
+    solve: f64,
+    muscles: f64,
+    tensor: f64,
+    write: f64,
+}
+
+fn capture_one(
+    video: &Path,
+    out_dir: &Path,
+    args: &Args,
+    setup: &Setup,
+    interrupted: &AtomicBool,
+    progress: &crate::progress::Progress,
+) -> anyhow::Result<serde_json::Value> {
+    let started = Instant::now();
+    let mut timings = Timings::default();
+    let mut source = open_source(video, &SourceOptions::default())?;
+    let info = source.info().clone();
+    std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    // A previous finished capture is being redone: remove its completion marker first.
+    let _ = std::fs::remove_file(out_dir.join("summary.json"));
+    let camera = match setup.camera {
+        Some(c) => c,
+        None => Intrinsics::default_for_frame(info.width, info.height)?,
+    };
+    let solver = AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?;
+    let mut solver_ws = solver.workspace();
+    let mut solve_state = SolveState::new(solver.num_shapes());
+    let mut solution = Solution::new(solver.num_shapes());
+    let tracker = &setup.tracker;
+    let mut tracker_ws = tracker.new_workspace();
+    let mut tracker_state = TrackerState::new();
+    let mut tracked = TrackedFrame::default();
+    let names: Vec<String> = solver.names().to_vec();
+
+    let mut lm_csv = FrameCsvWriter::create(out_dir.join("landmarks.csv"), &landmark_columns())?;
+    let mut pose_csv = FrameCsvWriter::create(out_dir.join("pose.csv"), &POSE_COLUMNS)?;
+    let mut w_csv = FrameCsvWriter::create(out_dir.join("weights.csv"), &names)?;
+    let mut muscle_run = setup.muscles.as_ref().map(|m| m.start(out_dir, camera)).transpose()?;
+    let mut tensor_run = setup.tensor.as_ref().map(|t| t.start(out_dir, camera)).transpose()?;
+
+    let mut bar = progress.bar(video, info.frame_count);
+    let sheet_every = info.frame_count.map(|n| (n as usize / args.sheet_frames.max(1)).max(1)).unwrap_or(30);
+    let mut sheet: Vec<(u64, GrayImage, FrameOut)> = Vec::new();
+    let mut frames: Vec<FrameOut> = Vec::new();
+    let mut frame = Frame::default();
+    let mut lm_values = [0.0; 2 * NUM_LANDMARKS];
+    let mut prev_weights = vec![0.0; names.len()];
+    let mut faces_found = 0u64;
+    loop {
+        if interrupted.load(Ordering::SeqCst) {
+            anyhow::bail!("interrupted at frame {}", frames.len());
+        }
+        let t = Instant::now();
+        if !source.read_into(&mut frame)? {
+            break;
+        }
+        timings.decode += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        tracker.track_into(&frame.gray, frame.timestamp_s, &mut tracker_ws, &mut tracker_state, &mut tracked)?;
+        timings.track += t.elapsed().as_secs_f64();
+        let lms = tracked.success.then(|| tracked.landmarks.clone());
+        landmark_values(lms.as_ref(), &mut lm_values);
+        lm_csv.write_row(&FrameRow {
+            frame: frame.index,
+            timestamp: frame.timestamp_s,
+            success: tracked.success,
+            confidence: tracked.confidence,
+            values: &lm_values,
+        })?;
+        let t = Instant::now();
+        let mut out = FrameOut {
+            timestamp: frame.timestamp_s,
+            success: false,
+            confidence: tracked.confidence,
+            landmarks: lms.clone(),
+            weights: prev_weights.clone(),
+            pose: None,
+            reprojection_px: f64::NAN,
+        };
+        if let Some(l) = &lms {
+            faces_found += 1;
+            match solver.solve_into(l, &mut solver_ws, &mut solve_state, &mut solution) {
+                Ok(_) => {
+                    out.success = true;
+                    out.weights.copy_from_slice(&solution.weights);
+                    out.pose = solution.pose;
+                    out.reprojection_px = solution.reprojection_error(l);
+                    prev_weights.copy_from_slice(&solution.weights);
+                }
+                Err(e) => {
+                    progress.line(&format!("{}: frame {}: solver failed: {e}", video.display(), frame.index));
+                    solve_state.reset();
+                }
+            }
+        } else {
+            solve_state.reset();
+        }
+        timings.solve += t.elapsed().as_secs_f64();
+        let pose_values = pose_row(out.pose.as_ref());
+        pose_csv.write_row(&FrameRow {
+            frame: frame.index,
+            timestamp: frame.timestamp_s,
+            success: out.success && out.pose.is_some(),
+            confidence: tracked.confidence,
+            values: &pose_values,
+        })?;
+        let nan_weights = vec![f64::NAN; names.len()];
+        w_csv.write_row(&FrameRow {
+            frame: frame.index,
+            timestamp: frame.timestamp_s,
+            success: out.success,
+            confidence: tracked.confidence,
+            values: if out.success { &out.weights } else { &nan_weights },
+        })?;
+        if let Some(m) = muscle_run.as_mut() {
+            let t = Instant::now();
+            m.frame(frame.index, frame.timestamp_s, lms.as_ref(), tracked.confidence)?;
+            timings.muscles += t.elapsed().as_secs_f64();
+        }
+        if let Some(tr) = tensor_run.as_mut() {
+            let t = Instant::now();
+            tr.frame(frame.index, frame.timestamp_s, lms.as_ref(), tracked.confidence)?;
+            timings.tensor += t.elapsed().as_secs_f64();
+        }
+        if frame.index as usize % sheet_every == 0 && sheet.len() < args.sheet_frames.max(1) {
+            sheet.push((frame.index, frame.gray.clone(), out.clone()));
+        }
+        frames.push(out);
+        bar.inc();
+    }
+    bar.finish();
+    if frames.is_empty() {
+        anyhow::bail!("{}: no frames decoded", video.display());
+    }
+    let t = Instant::now();
+    lm_csv.finish()?;
+    pose_csv.finish()?;
+    w_csv.finish()?;
+    if let Some(m) = muscle_run {
+        m.finish()?;
+    }
+    if let Some(tr) = tensor_run {
+        tr.finish()?;
+    }
+    let livelink = crate::livelink::write_if_arkit(&out_dir.join("livelink.csv"), &names, &frames_weights(&frames), &frame_times(&frames))?;
+    write_animation(out_dir, &setup.rig_mesh, &frames)?;
+    if args.obj {
+        write_objs(out_dir, &setup.rig_mesh, &frames)?;
+    }
+    let truth = crate::truth::evaluate(video, &names, &frames_for_truth(&frames))?;
+    write_report(out_dir, video, setup, &names, &frames, &sheet, truth.as_ref())?;
+    timings.write += t.elapsed().as_secs_f64();
+    let elapsed = started.elapsed().as_secs_f64();
+    let reproj: Vec<f64> = frames.iter().map(|f| f.reprojection_px).filter(|x| x.is_finite()).collect();
+    let summary = json!({
+        "video": video.display().to_string(),
+        "frames": frames.len(),
+        "faces_found": faces_found,
+        "success_frames": frames.iter().filter(|f| f.success).count(),
+        "width": info.width,
+        "height": info.height,
+        "fps": info.fps,
+        "codec": info.codec,
+        "frames_per_second": frames.len() as f64 / elapsed.max(1e-9),
+        "seconds": elapsed,
+        "timings_seconds": {
+            "decode": timings.decode, "track": timings.track, "solve": timings.solve,
+            "muscles": timings.muscles, "tensor": timings.tensor, "write_outputs": timings.write,
+        },
+        "mean_reprojection_px": if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 },
+        "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
+        "shapes": names,
+        "livelink_csv": livelink,
+        "truth": truth,
+        "settings": setup.args_echo,
+        "versions": {"facecap": env!("CARGO_PKG_VERSION")},
+    });
+    let text = serde_json::to_string_pretty(&summary)?;
+    facecap_core::atomic::write_atomic(out_dir.join("summary.json"), |w| w.write_all(text.as_bytes()))?;
+    Ok(summary)
+}
+
+/// One `pose.csv` row: translation (model units, camera axes x right, y down, z
+/// forward) and the head rotation *relative to facing the camera* as Euler angles in
+/// radians (`R = Rz Ry Rx`; Rx pitch, Ry yaw, Rz roll), like OpenFace. The rig is +Y up,
+/// +Z out of the face, so a face looking into the camera has model-to-camera rotation
+/// `F = diag(1, -1, -1)`; the reported rotation is `R F`, which is the identity then.
+fn pose_row(pose: Option<&ModelToCamera>) -> [f64; 6] {
+    match pose {
+        Some(p) => {
+            let t = p.tvec();
+            let flip = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, -1.0, -1.0));
+            let r = nalgebra::Rotation3::from_matrix_unchecked(p.0.rotation.to_rotation_matrix().matrix() * flip);
+            let (rx, ry, rz) = r.euler_angles();
+            [t.x, t.y, t.z, rx, ry, rz]
+        }
+        None => [f64::NAN; 6],
+    }
+}
+
+fn frames_weights(frames: &[FrameOut]) -> Vec<Vec<f64>> {
+    frames.iter().map(|f| f.weights.clone()).collect()
+}
+
+fn frame_times(frames: &[FrameOut]) -> Vec<f64> {
+    frames.iter().map(|f| f.timestamp).collect()
+}
+
+fn frames_for_truth(frames: &[FrameOut]) -> Vec<crate::truth::Estimate> {
+    frames
+        .iter()
+        .map(|f| crate::truth::Estimate {
+            landmarks: f.landmarks.clone(),
+            weights: f.success.then(|| f.weights.clone()),
+            pose: f.pose,
+        })
+        .collect()
+}
+
+/// Keyframe times must increase strictly: nudge repeated timestamps.
+fn keyframe_times(frames: &[FrameOut]) -> Vec<f32> {
+    let mut times: Vec<f32> = Vec::with_capacity(frames.len());
+    for f in frames {
+        let mut t = f.timestamp.max(0.0) as f32;
+        if let Some(&last) = times.last() {
+            if t <= last {
+                t = last + 1e-4;
+            }
+        }
+        times.push(t);
+    }
+    times
+}
+
+fn write_animation(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
+    let anim = MorphAnimation {
+        times_s: keyframe_times(frames),
+        weights: frames.iter().map(|f| f.weights.iter().map(|&w| w as f32).collect()).collect(),
+    };
+    facecap_core::gltf_io::write_glb(out_dir.join("animation.glb"), rig, Some(&anim))?;
+    Ok(())
+}
+
+fn write_objs(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
+    let dir = out_dir.join("obj");
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut posed = Vec::new();
+    let mut mesh = rig.base.clone();
+    for (i, f) in frames.iter().enumerate() {
+        rig.pose_into(&f.weights, &mut posed)?;
+        mesh.positions.clone_from(&posed);
+        mesh.compute_normals();
+        facecap_core::obj::write_obj(dir.join(format!("frame_{i:06}.obj")), &mesh)?;
+    }
+    Ok(())
+}
+
+fn write_report(
+    out_dir: &Path,
+    video: &Path,
+    setup: &Setup,
+    names: &[String],
+    frames: &[FrameOut],
+    sheet: &[(u64, GrayImage, FrameOut)],
+    truth: Option<&serde_json::Value>,
+) -> anyhow::Result<()> {
+    let dir = out_dir.join("report");
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut sheets = Vec::new();
+    let mut posed = Vec::new();
+    for (idx, gray, f) in sheet {
+        let mut rgb = RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
+            let v = gray.get_pixel(x, y).0[0];
+            image::Rgb([v, v, v])
+        });
+        if let Some(l) = &f.landmarks {
+            let r = (gray.width().max(gray.height()) / 250).max(1) as i64;
+            report::draw_points(&mut rgb, &l.points, r, [40, 220, 60]);
+        }
+        let size = rgb.height().clamp(64, 720);
+        setup.rig_mesh.pose_into(&f.weights, &mut posed)?;
+        // Show the head rotation as seen by the camera: camera axes are x right, y down,
+        // z forward; the renderer looks along -z with y up, so flip y and z.
+        let rot = match &f.pose {
+            Some(p) => {
+                let flip = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(
+                    &nalgebra::Vector3::new(1.0, -1.0, -1.0),
+                ));
+                flip * p.0.rotation.to_rotation_matrix()
+            }
+            None => nalgebra::Rotation3::identity(),
+        };
+        let render = report::render_mesh(&posed, &setup.rig_mesh.base.triangles, &rot, size);
+        let tile = report::side_by_side(&rgb, &render);
+        let name = format!("frame_{idx:06}.png");
+        let path = dir.join(&name);
+        facecap_core::atomic::write_atomic(&path, |w| {
+            let mut buf = std::io::Cursor::new(Vec::new());
+            tile.write_to(&mut buf, image::ImageFormat::Png).map_err(std::io::Error::other)?;
+            w.write_all(buf.get_ref())
+        })?;
+        sheets.push((format!("report/{name}"), format!("frame {idx}, t = {:.2} s, confidence {:.2}", f.timestamp, f.confidence)));
+    }
+    let times = frame_times(frames);
+    let mut plots = Vec::new();
+    let mut svg = |file: &str, title: &str, series: Vec<(String, Vec<f64>)>| -> anyhow::Result<()> {
+        let s = report::svg_line_plot(title, &times, &series, 1000, 320);
+        facecap_core::atomic::write_atomic(dir.join(file), |w| w.write_all(s.as_bytes()))?;
+        plots.push(format!("report/{file}"));
+        Ok(())
+    };
+    let weight_series: Vec<(String, Vec<f64>)> = names
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (n.clone(), frames.iter().map(|f| if f.success { f.weights[k] } else { f64::NAN }).collect()))
+        .collect();
+    // Plot the most active shapes (at most 10 per plot to stay readable).
+    let mut order: Vec<usize> = (0..names.len()).collect();
+    order.sort_by(|&a, &b| {
+        let m = |k: usize| weight_series[k].1.iter().filter(|x| x.is_finite()).fold(0.0f64, |m, &x| m.max(x));
+        m(b).total_cmp(&m(a))
+    });
+    for (chunk_i, chunk) in order.chunks(10).take(3).enumerate() {
+        svg(
+            &format!("weights_{chunk_i}.svg"),
+            &format!("Blendshape weights ({})", chunk_i + 1),
+            chunk.iter().map(|&k| weight_series[k].clone()).collect(),
+        )?;
+    }
+    let pose_rows: Vec<[f64; 6]> = frames.iter().map(|f| pose_row(f.pose.as_ref())).collect();
+    svg(
+        "pose_rotation.svg",
+        "Head rotation (degrees)",
+        ["pitch (Rx)", "yaw (Ry)", "roll (Rz)"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| (n.to_string(), pose_rows.iter().map(|r| r[3 + k].to_degrees()).collect()))
+            .collect(),
+    )?;
+    svg(
+        "pose_translation.svg",
+        "Head translation (model units)",
+        ["Tx", "Ty", "Tz"]
+            .iter()
+            .enumerate()
+            .map(|(k, n)| (n.to_string(), pose_rows.iter().map(|r| r[k]).collect()))
+            .collect(),
+    )?;
+    svg(
+        "confidence.svg",
+        "Tracking confidence and reprojection error",
+        vec![
+            ("confidence".into(), frames.iter().map(|f| f.confidence).collect()),
+            ("reprojection px / 10".into(), frames.iter().map(|f| f.reprojection_px / 10.0).collect()),
+        ],
+    )?;
+    let mut rows = vec![
+        ("video".to_string(), video.display().to_string()),
+        ("frames".to_string(), frames.len().to_string()),
+        ("frames with a solved face".to_string(), frames.iter().filter(|f| f.success).count().to_string()),
+        ("rig".to_string(), setup.rig_name.clone()),
+        ("solver".to_string(), setup.method.name().to_string()),
+    ];
+    if let Some(t) = truth {
+        rows.push(("error against ground truth".to_string(), t.to_string()));
+    }
+    report::write_report_html(out_dir, &format!("facecap capture: {}", video_stem(video)), &rows, &sheets, &plots)?;
+    Ok(())
 }

@@ -274,7 +274,7 @@ impl Tps {
 }
 
 /// Bowyer-Watson Delaunay triangulation of 2D points (CCW triangles).
-fn delaunay(points: &[(f64, f64)]) -> Vec<[u32; 3]> {
+pub(crate) fn delaunay(points: &[(f64, f64)]) -> Vec<[u32; 3]> {
     let n = points.len();
     let (mut minx, mut miny, mut maxx, mut maxy) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
     for p in points {

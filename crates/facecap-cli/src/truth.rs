@@ -1,0 +1,94 @@
+//! Error of a capture against ground truth written by `facecap synth`
+//! (`<video-stem>.truth.csv` beside the video).
+//!
+//! Measures: mean landmark error in pixels and normalised by the true inter-ocular
+//! distance (outer eye corners); weight RMSE over the shapes both files name; head
+//! rotation error in degrees, comparing rotations relative to the first solved frame
+//! (the truth's `rel_R*` columns are relative to frame 0 in model axes).
+
+use std::path::Path;
+
+use facecap_core::camera::ModelToCamera;
+use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use nalgebra::Rotation3;
+use serde_json::json;
+
+/// What the capture estimated for one frame.
+#[derive(Debug, Clone)]
+pub struct Estimate {
+    /// Tracked landmarks.
+    pub landmarks: Option<Landmarks68>,
+    /// Solved weights (rig order).
+    pub weights: Option<Vec<f64>>,
+    /// Solved pose.
+    pub pose: Option<ModelToCamera>,
+}
+
+/// The truth file for `video`, if any.
+pub fn truth_path(video: &Path) -> Option<std::path::PathBuf> {
+    let stem = video.file_stem()?.to_string_lossy().into_owned();
+    let p = video.with_file_name(format!("{stem}.truth.csv"));
+    p.is_file().then_some(p)
+}
+
+/// Errors against the truth file beside `video`; `None` when there is none.
+pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Result<Option<serde_json::Value>> {
+    let Some(path) = truth_path(video) else { return Ok(None) };
+    let table = facecap_core::csv::read_frame_csv(&path)?;
+    let truth_lms = facecap_core::csv::landmarks_from_table(&table)?;
+    let (mut lm_sum, mut nme_sum, mut lm_n) = (0.0, 0.0, 0usize);
+    for (t, e) in truth_lms.iter().zip(est) {
+        if let (Some(tl), Some(el)) = (&t.landmarks, &e.landmarks) {
+            let mean: f64 =
+                (0..NUM_LANDMARKS).map(|i| (tl.points[i] - el.points[i]).norm()).sum::<f64>() / NUM_LANDMARKS as f64;
+            lm_sum += mean;
+            nme_sum += mean / tl.interocular_distance();
+            lm_n += 1;
+        }
+    }
+    let (mut w_sq, mut w_n) = (0.0, 0usize);
+    let mut per_shape = serde_json::Map::new();
+    for (k, name) in names.iter().enumerate() {
+        let Some(col) = table.column(name) else { continue };
+        let (mut s, mut n) = (0.0, 0usize);
+        for (truth, e) in col.iter().zip(est) {
+            if let Some(w) = &e.weights {
+                s += (w[k] - truth).powi(2);
+                n += 1;
+            }
+        }
+        if n > 0 {
+            per_shape.insert(name.clone(), json!((s / n as f64).sqrt()));
+            w_sq += s;
+            w_n += n;
+        }
+    }
+    let mut rot_errs = Vec::new();
+    if let (Some(rx), Some(ry), Some(rz)) = (table.column("rel_Rx"), table.column("rel_Ry"), table.column("rel_Rz")) {
+        let first = est.iter().enumerate().find_map(|(i, e)| e.pose.map(|p| (i, p)));
+        if let Some((f0, p0)) = first.filter(|(f0, _)| *f0 < rx.len().min(ry.len()).min(rz.len())) {
+            let r_t0 = Rotation3::from_euler_angles(rx[f0], ry[f0], rz[f0]);
+            let r_e0 = p0.0.rotation.to_rotation_matrix();
+            for (i, e) in est.iter().enumerate().skip(f0) {
+                let (Some(p), Some(&x), Some(&y), Some(&z)) = (e.pose, rx.get(i), ry.get(i), rz.get(i)) else {
+                    continue;
+                };
+                // Model-frame rotation relative to the first solved frame.
+                let rel_e = r_e0.inverse() * p.0.rotation.to_rotation_matrix();
+                let rel_t = r_t0.inverse() * Rotation3::from_euler_angles(x, y, z);
+                rot_errs.push((rel_e.inverse() * rel_t).angle().to_degrees());
+            }
+        }
+    }
+    let mean = |v: &[f64]| if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 };
+    Ok(Some(json!({
+        "truth_file": path.display().to_string(),
+        "frames_compared": lm_n,
+        "landmark_error_px": if lm_n > 0 { lm_sum / lm_n as f64 } else { f64::NAN },
+        "landmark_nme_interocular": if lm_n > 0 { nme_sum / lm_n as f64 } else { f64::NAN },
+        "weight_rmse": if w_n > 0 { (w_sq / w_n as f64).sqrt() } else { f64::NAN },
+        "weight_rmse_per_shape": per_shape,
+        "rotation_error_deg_mean": mean(&rot_errs),
+        "rotation_error_deg_max": rot_errs.iter().copied().fold(f64::NAN, f64::max),
+    })))
+}
