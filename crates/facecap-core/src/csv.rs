@@ -26,6 +26,26 @@
 //! written through an [`AtomicFile`]: it appears at its path only when
 //! [`FrameCsvWriter::finish`] succeeds. `write_row` formats into a reused buffer and
 //! does not allocate once the first row has been written.
+//!
+//! ```
+//! use facecap_core::csv::{landmark_columns, landmark_values, read_landmarks_csv, FrameCsvWriter, FrameRow};
+//! use facecap_core::landmarks::Landmarks68;
+//! let dir = tempfile::tempdir().unwrap();
+//! let path = dir.path().join("landmarks.csv");
+//! let mut w = FrameCsvWriter::create(&path, &landmark_columns()).unwrap();
+//! let lm = Landmarks68::from_fn(|i| (i as f64, 2.0 * i as f64));
+//! let mut values = [0.0; 136];
+//! for frame in 0..3u64 {
+//!     let ok = frame != 1;
+//!     landmark_values(ok.then_some(&lm), &mut values);
+//!     let row = FrameRow { frame, timestamp: frame as f64 / 30.0, success: ok, confidence: 0.9, values: &values };
+//!     w.write_row(&row).unwrap();
+//! }
+//! w.finish().unwrap();
+//! let back = read_landmarks_csv(&path).unwrap();
+//! assert_eq!(back[0].landmarks.as_ref(), Some(&lm));
+//! assert!(back[1].landmarks.is_none());
+//! ```
 
 use std::collections::HashSet;
 use std::fmt::Write as _;

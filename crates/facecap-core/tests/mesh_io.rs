@@ -375,14 +375,14 @@ fn our_corners(m: &Mesh) -> Vec<[Corner; 3]> {
 }
 
 /// The same from tobj (the reference reader; single-index mode aligns attributes).
-fn tobj_corners(path: &Path) -> Vec<[Corner; 3]> {
+fn tobj_corners(path: &Path) -> Option<Vec<[Corner; 3]>> {
     let opts = tobj::LoadOptions {
         single_index: true,
         triangulate: true,
         ignore_points: true,
         ignore_lines: true,
     };
-    let (models, _materials) = tobj::load_obj(path, &opts).unwrap();
+    let (models, _materials) = tobj::load_obj(path, &opts).ok()?;
     let mut v = Vec::new();
     for m in &models {
         let mm = &m.mesh;
@@ -395,18 +395,19 @@ fn tobj_corners(path: &Path) -> Vec<[Corner; 3]> {
         }
     }
     v.sort();
-    v
+    Some(v)
 }
 
 #[test]
 fn shared_obj_files_match_tobj_and_keep_vertex_order() {
     let test = "shared_obj_files_match_tobj_and_keep_vertex_order";
     // (file, v lines, triangles or None)
-    let cases: [(&str, usize, Option<usize>); 6] = [
+    let cases: [(&str, usize, Option<usize>); 7] = [
         ("models3d/mediapipe/canonical_face_model.obj", 468, Some(898)),
         ("models3d/mediapipe/face_model_with_iris.obj", 478, Some(906)),
         ("models3d/menpo3d_james/james.obj", 6393, Some(12228)),
         ("models3d/eos_sfm/sfm_reference.obj", 845, Some(1610)),
+        ("models3d/eos_sfm/sfm_reference_annotated.obj", 845, Some(1610)),
         (
             "models3d/ict_facekit/generic_neutral_mesh.obj",
             26719,
@@ -431,7 +432,19 @@ fn shared_obj_files_match_tobj_and_keep_vertex_order() {
         if let Some(nt) = nt {
             assert_eq!(m.triangles.len(), nt, "{rel}");
         }
-        assert_eq!(our_corners(&m), tobj_corners(&p), "{rel}: triangles differ from tobj");
+        match tobj_corners(&p) {
+            Some(reference) => assert_eq!(our_corners(&m), reference, "{rel}: triangles differ from tobj"),
+            // tobj 4.0.5 fails on `v x y z r g b # comment` (sfm_reference_annotated.obj);
+            // that file is sfm_reference.obj plus colours and comments.
+            None => {
+                let plain = shared_data_file(test, "models3d/eos_sfm/sfm_reference.obj").unwrap();
+                assert!(
+                    rel.ends_with("sfm_reference_annotated.obj"),
+                    "{rel}: tobj cannot read it"
+                );
+                assert_eq!(m, read_obj(plain).unwrap(), "{rel}");
+            }
+        }
         eprintln!(
             "{rel}: {} v lines, {} vertices after seam split, {} triangles, uvs: {}",
             nv,
@@ -696,4 +709,29 @@ fn io_timings() {
         rig.targets.len(),
         m.num_vertices()
     );
+}
+
+#[test]
+fn gltf_with_external_buffer_reads() {
+    // Turn the embedded data URI of a written .gltf into a .bin beside it.
+    let dir = tempfile::tempdir().unwrap();
+    let rig = synthetic_rig(4, 3, 2, 17);
+    let anim = synthetic_animation(5, 2, 30.0, 17);
+    let glb = glb_to_vec(&rig, Some(&anim)).unwrap();
+    let json_len = u32::from_le_bytes([glb[12], glb[13], glb[14], glb[15]]) as usize;
+    let mut json: serde_json::Value = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+    let bin = &glb[20 + json_len + 8..];
+    std::fs::write(dir.path().join("rig data.bin"), bin).unwrap();
+    json["buffers"][0]["uri"] = serde_json::Value::String("rig%20data.bin".into());
+    let p = dir.path().join("rig.gltf");
+    std::fs::write(&p, serde_json::to_vec(&json).unwrap()).unwrap();
+    let (m, a) = read_morph_file(&p).unwrap();
+    assert_same_mesh(&rig, &m);
+    assert_eq!(a.unwrap(), anim);
+    // Missing external buffer: an error, not a panic.
+    std::fs::remove_file(dir.path().join("rig data.bin")).unwrap();
+    assert!(matches!(read_morph_mesh(&p), Err(Error::Parse { .. })));
+    // From a slice without a base folder, external buffers are refused.
+    let bytes = std::fs::read(&p).unwrap();
+    assert!(read_morph_mesh_from_slice(&bytes, None).is_err());
 }
