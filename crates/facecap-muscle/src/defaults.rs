@@ -179,11 +179,32 @@ pub fn default_muscle_set(lm: &[Option<Point3<f64>>; 68], positions: &[Point3<f6
         }
         let ec = Point3::from(ec / 6.0);
         let ul = need(lm, upper, "upper-lip insertion")?;
-        muscles.push(linear(format!("lips1_{sfx}"), f.offset(&ec, 0.0, -0.3, -0.15), ul, s, 0.25, 0.15));
-        muscles.push(linear(format!("lips3_{sfx}"), f.offset(&mc, 0.1 * sg, -0.55, -0.15), mc, s, 0.3, 0.15));
+        muscles.push(linear(
+            format!("lips1_{sfx}"),
+            f.offset(&ec, 0.0, -0.3, -0.15),
+            ul,
+            s,
+            0.25,
+            0.15,
+        ));
+        muscles.push(linear(
+            format!("lips3_{sfx}"),
+            f.offset(&mc, 0.1 * sg, -0.55, -0.15),
+            mc,
+            s,
+            0.3,
+            0.15,
+        ));
         let nb = need(lm, 27, "nose-forehead muscle origin")?;
         let mb = need(lm, brow, "brow insertion")?;
-        muscles.push(linear(format!("nose_forehead_{sfx}"), f.offset(&nb, 0.08 * sg, 0.0, -0.1), mb, s, 0.3, 0.12));
+        muscles.push(linear(
+            format!("nose_forehead_{sfx}"),
+            f.offset(&nb, 0.08 * sg, 0.0, -0.1),
+            mb,
+            s,
+            0.3,
+            0.12,
+        ));
     }
     for (sfx, sg, _, _, _, _, brow, brow_out) in sides {
         let mb = need(lm, brow, "frontalis insertion")?;

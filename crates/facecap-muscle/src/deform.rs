@@ -259,7 +259,11 @@ impl MuscleShape {
                 }
             }
             MuscleShape::Parallel(m) => {
-                pts(&[("origin", &m.origin), ("insertion", &m.insertion), ("control", &m.control)])?;
+                pts(&[
+                    ("origin", &m.origin),
+                    ("insertion", &m.insertion),
+                    ("control", &m.control),
+                ])?;
                 distinct(&m.origin, &m.insertion, "origin and insertion")?;
                 falloff(m.rs, m.rf)?;
                 non_negative(n("k"), m.k)?;
@@ -588,14 +592,19 @@ mod tests {
         let d = Deformer::new(&lin(), "m", None).unwrap();
         let v = d.displacement(&Point3::new(1.0, 0.0, 0.0), &Vector3::z());
         assert!((v - Vector3::new(-0.3, 0.0, 0.0)).norm() < 1e-12);
-        assert_eq!(d.displacement(&Point3::new(2.5, 0.0, 0.0), &Vector3::z()), Vector3::zeros());
+        assert_eq!(
+            d.displacement(&Point3::new(2.5, 0.0, 0.0), &Vector3::z()),
+            Vector3::zeros()
+        );
         // Behind the origin the angular falloff vanishes.
         assert!(d.displacement(&Point3::new(-1.0, 0.0, 0.0), &Vector3::z()).norm() < 1e-12);
     }
 
     #[test]
     fn validation_names_the_parameter() {
-        let MuscleShape::Linear(mut m) = lin() else { unreachable!() };
+        let MuscleShape::Linear(mut m) = lin() else {
+            unreachable!()
+        };
         m.rf = 0.5;
         let e = MuscleShape::Linear(m).validate("cheek_L").unwrap_err().to_string();
         assert!(e.contains("cheek_L") && e.contains("rf"), "{e}");

@@ -31,5 +31,7 @@ pub mod deform;
 pub mod error;
 pub mod rig;
 pub mod set;
+pub mod synthetic;
+pub mod track;
 
 pub use error::{Error, Result};

@@ -114,7 +114,11 @@ fn check_inputs(set: &MuscleSet, positions: &[Point3<f64>], normals: &[Vector3<f
         });
     }
     if let Some(i) = positions.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
-        return Err(Error::invalid("vertex position", format!("vertex {i}"), "finite coordinates"));
+        return Err(Error::invalid(
+            "vertex position",
+            format!("vertex {i}"),
+            "finite coordinates",
+        ));
     }
     Ok(())
 }

@@ -196,7 +196,11 @@ impl MuscleSet {
                 ));
             }
             if m.name == "jaw" {
-                return Err(Error::invalid("muscle name", "\"jaw\"", "a name other than the reserved \"jaw\""));
+                return Err(Error::invalid(
+                    "muscle name",
+                    "\"jaw\"",
+                    "a name other than the reserved \"jaw\"",
+                ));
             }
             if !seen.insert(m.name.as_str()) {
                 return Err(Error::invalid("muscle name", format!("{:?}", m.name), "unique names"));
@@ -244,7 +248,11 @@ impl MuscleSet {
             }
             let n = (j.axis[0].powi(2) + j.axis[1].powi(2) + j.axis[2].powi(2)).sqrt();
             if !(n.is_finite() && n > 1e-12) {
-                return Err(Error::invalid("jaw.axis", format!("{:?}", j.axis), "a finite non-zero vector"));
+                return Err(Error::invalid(
+                    "jaw.axis",
+                    format!("{:?}", j.axis),
+                    "a finite non-zero vector",
+                ));
             }
             if !self.vertex_groups.contains_key(&j.vertex_group) {
                 return Err(Error::invalid(
@@ -307,7 +315,10 @@ mod tests {
             (GOOD.replace("\"rf\": 2", "\"rf\": 0.5"), "rf"),
             (GOOD.replace("\"type\": \"linear\"", "\"type\": \"ring\""), "ring"),
             (GOOD.replace("[1.0, 0.5]", "[1.0, 1.5]"), "weight"),
-            (GOOD.replace("\"vertex_group\": \"g\"}", "\"vertex_group\": \"h\"}"), "vertex_group"),
+            (
+                GOOD.replace("\"vertex_group\": \"g\"}", "\"vertex_group\": \"h\"}"),
+                "vertex_group",
+            ),
             (GOOD.replace("\"max_angle\": 0.3", "\"max_angle\": 3"), "max_angle"),
             (GOOD.replace("\"name\": \"s\"", "\"name\": \"a\""), "unique"),
         ] {
