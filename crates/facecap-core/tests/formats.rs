@@ -212,6 +212,9 @@ fn shared_dlib_xml_files_read_exactly_and_round_trip() {
             }
         }
         assert!(ds.comment.as_deref().unwrap_or("").contains("PASCAL VOC"));
+        for img in &ds.images {
+            assert!(img.resolve_path(&p).is_file(), "{}", img.file);
+        }
         let out = dir.path().join("rt.xml");
         write_dlib_xml(&out, &ds).unwrap();
         assert_eq!(read_dlib_xml(&out).unwrap(), ds, "{rel}: round trip");

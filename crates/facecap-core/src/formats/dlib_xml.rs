@@ -61,6 +61,17 @@ pub struct DlibImage {
     pub boxes: Vec<DlibBox>,
 }
 
+impl DlibImage {
+    /// The image's path: `file` resolved against the folder of the XML file it was
+    /// read from (absolute `file`s are kept as they are).
+    pub fn resolve_path(&self, xml_path: &Path) -> std::path::PathBuf {
+        match xml_path.parent() {
+            Some(dir) => dir.join(&self.file),
+            None => std::path::PathBuf::from(&self.file),
+        }
+    }
+}
+
 /// One `<box>` with its parts.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DlibBox {
