@@ -154,6 +154,14 @@ impl BlendshapeRig {
         Ok(rig)
     }
 
+    /// Reads a glTF/GLB with morph targets (via `facecap_core::gltf_io`) and a landmark map
+    /// JSON file (`vertex_by_ibug_0based`, `vertex_by_ibug_1based` or a plain list of 68 ids).
+    pub fn from_gltf(rig: &Path, landmark_map: &Path) -> Result<Self> {
+        let mesh = facecap_core::gltf_io::read_morph_mesh(rig)?;
+        let map = LandmarkMap::from_json_file(landmark_map)?;
+        Self::from_morph_mesh(mesh, &map, &rig.display().to_string())
+    }
+
     /// The seed's layout: a neutral OBJ plus one OBJ per expression (same vertex count and order;
     /// the blendshape is named after the file stem unless a name is given).
     pub fn from_obj_files(

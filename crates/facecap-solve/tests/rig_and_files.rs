@@ -159,3 +159,31 @@ fn ict_rig_from_raw_files() {
     assert_eq!(mesh.base.positions.len(), 9409);
     assert!(!mesh.base.triangles.is_empty());
 }
+
+#[test]
+fn ict_and_sfm_rigs_from_gltf() {
+    for (glb, map, shapes, mapped) in [
+        (
+            "models3d/ict_facekit/ict_face_arkit53.glb",
+            "models3d/ict_facekit/ict_landmarks68.json",
+            53,
+            68,
+        ),
+        (
+            "models3d/eos_sfm/sfm_expressions6.glb",
+            "models3d/eos_sfm/sfm_landmarks68.json",
+            6,
+            50,
+        ),
+    ] {
+        let (Some(g), Some(m)) = (
+            facecap_core::paths::shared_data_file("ict_and_sfm_rigs_from_gltf", glb),
+            facecap_core::paths::shared_data_file("ict_and_sfm_rigs_from_gltf", map),
+        ) else {
+            continue;
+        };
+        let rig = BlendshapeRig::from_gltf(&g, &m).unwrap();
+        assert_eq!(rig.num_shapes(), shapes, "{glb}");
+        assert_eq!(rig.num_mapped(), mapped, "{glb}");
+    }
+}
