@@ -735,3 +735,35 @@ fn gltf_with_external_buffer_reads() {
     let bytes = std::fs::read(&p).unwrap();
     assert!(read_morph_mesh_from_slice(&bytes, None).is_err());
 }
+
+/// Every `.glb` and `.obj` below `shared/data/models3d` reads (not only the ones named above).
+#[test]
+fn every_shared_mesh_file_reads() {
+    let Some(root) = shared_data_file("every_shared_mesh_file_reads", "models3d") else {
+        return;
+    };
+    let mut files = Vec::new();
+    let mut stack = vec![root];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|e| e == "glb" || e == "obj") {
+                files.push(p);
+            }
+        }
+    }
+    files.sort();
+    for p in &files {
+        if p.extension().is_some_and(|e| e == "glb") {
+            let m = read_morph_mesh(p).unwrap();
+            m.validate().unwrap();
+        } else {
+            let m = read_obj(p).unwrap();
+            m.validate().unwrap();
+        }
+    }
+    eprintln!("read {} mesh files", files.len());
+    assert!(files.len() >= 11, "{files:?}");
+}
