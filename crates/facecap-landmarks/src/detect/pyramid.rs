@@ -1,0 +1,296 @@
+//! dlib's image pyramids for the HOG detector, reproduced to the bit.
+//!
+//! * `pyramid_down<6>`: each level is `floor(5 * rows / 6) x floor(5 * cols / 6)`
+//!   pixels, made by dlib's bilinear `resize_image` (the 8-bit greyscale SIMD path:
+//!   float weights, `(u8)(value + 0.5)` rounding, 4-column blocks, scalar tail with
+//!   truncation). A point `p` of a level maps to `p' = (p - 0.3) * 5/6` on the next.
+//! * `pyramid_down<2>` up-sampling (used by `detector(img, upsample)`): the output is
+//!   `rect_up(get_rect(img))` sized, i.e. `(2 * rows + 1) x (2 * cols + 2)`, filled by
+//!   the same resize; rectangles map back with `p' = p / 2 - (1.25, 0.75)`.
+//!
+//! Pixel convention: pixel `(x, y)` has its centre at `(x, y)` (0-based), as in dlib.
+
+/// A greyscale image owned by the detector workspace (row-major, `width * height`).
+#[derive(Debug, Clone, Default)]
+pub struct Gray {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Pixels, row-major.
+    pub data: Vec<u8>,
+}
+
+impl Gray {
+    /// Resizes the buffer (keeps the allocation when large enough).
+    pub fn set_size(&mut self, width: usize, height: usize) {
+        self.width = width;
+        self.height = height;
+        self.data.resize(width * height, 0);
+    }
+}
+
+/// A borrowed greyscale view.
+#[derive(Debug, Clone, Copy)]
+pub struct GrayView<'a> {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Pixels, row-major, `width * height` long.
+    pub data: &'a [u8],
+}
+
+impl Gray {
+    /// Borrow as a view.
+    pub fn view(&self) -> GrayView<'_> {
+        GrayView {
+            width: self.width,
+            height: self.height,
+            data: &self.data,
+        }
+    }
+}
+
+/// dlib's `drectangle -> rectangle` rounding: `floor(v + 0.5)`.
+pub(crate) fn round_half_up(v: f64) -> i64 {
+    (v + 0.5).floor() as i64
+}
+
+/// An inclusive integer rectangle as dlib's `rectangle` (`l, t, r, b`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DRect {
+    /// Left column (inclusive).
+    pub l: i64,
+    /// Top row (inclusive).
+    pub t: i64,
+    /// Right column (inclusive).
+    pub r: i64,
+    /// Bottom row (inclusive).
+    pub b: i64,
+}
+
+impl DRect {
+    /// Width `r - l + 1` (0 when empty).
+    pub fn width(&self) -> i64 {
+        if self.r < self.l {
+            0
+        } else {
+            self.r - self.l + 1
+        }
+    }
+    /// Height `b - t + 1` (0 when empty).
+    pub fn height(&self) -> i64 {
+        if self.b < self.t {
+            0
+        } else {
+            self.b - self.t + 1
+        }
+    }
+    /// Area in pixels (0 when empty).
+    pub fn area(&self) -> i64 {
+        self.width() * self.height()
+    }
+    /// Intersection (may be empty).
+    pub fn intersect(&self, o: &DRect) -> DRect {
+        DRect {
+            l: self.l.max(o.l),
+            t: self.t.max(o.t),
+            r: self.r.min(o.r),
+            b: self.b.min(o.b),
+        }
+    }
+    /// Smallest rectangle containing both (dlib's `a + b`).
+    pub fn union_box(&self, o: &DRect) -> DRect {
+        DRect {
+            l: self.l.min(o.l),
+            t: self.t.min(o.t),
+            r: self.r.max(o.r),
+            b: self.b.max(o.b),
+        }
+    }
+}
+
+/// `pyramid_down<6>::rect_up(rect, levels)`, rounded back to integers.
+pub(crate) fn rect_up6(rect: DRect, levels: usize) -> DRect {
+    let up = |mut v: f64| {
+        for _ in 0..levels {
+            v = v * (6.0 / 5.0) + 0.3;
+        }
+        v
+    };
+    DRect {
+        l: round_half_up(up(rect.l as f64)),
+        t: round_half_up(up(rect.t as f64)),
+        r: round_half_up(up(rect.r as f64)),
+        b: round_half_up(up(rect.b as f64)),
+    }
+}
+
+/// `pyramid_down<6>::rect_down(rect)` (one level), rounded.
+pub(crate) fn rect_down6(rect: DRect) -> DRect {
+    let down = |v: f64| (v - 0.3) * (5.0 / 6.0);
+    DRect {
+        l: round_half_up(down(rect.l as f64)),
+        t: round_half_up(down(rect.t as f64)),
+        r: round_half_up(down(rect.r as f64)),
+        b: round_half_up(down(rect.b as f64)),
+    }
+}
+
+/// `pyramid_down<2>::rect_down(rect, levels)`, rounded: maps boxes found on an
+/// up-sampled image back to the input image.
+pub(crate) fn rect_down2(rect: DRect, levels: u32) -> DRect {
+    let down = |mut x: f64, off: f64| {
+        for _ in 0..levels {
+            x = x / 2.0 - off;
+        }
+        x
+    };
+    DRect {
+        l: round_half_up(down(rect.l as f64, 1.25)),
+        t: round_half_up(down(rect.t as f64, 0.75)),
+        r: round_half_up(down(rect.r as f64, 1.25)),
+        b: round_half_up(down(rect.b as f64, 0.75)),
+    }
+}
+
+/// Size `(width, height)` of the `pyramid_down<6>` level below an image of this size.
+pub(crate) fn down6_size(width: usize, height: usize) -> (usize, usize) {
+    ((5 * width) / 6, (5 * height) / 6)
+}
+
+/// Size of `pyramid_up` (via `pyramid_down<2>`) of an image of this size:
+/// `rect_up((0, 0, w - 1, h - 1))` rounded, plus one.
+pub(crate) fn up2_size(width: usize, height: usize) -> (usize, usize) {
+    if width == 0 || height == 0 {
+        return (0, 0);
+    }
+    let r = round_half_up(((width as f64 - 1.0) + 1.25) * 2.0);
+    let b = round_half_up(((height as f64 - 1.0) + 0.75) * 2.0);
+    ((r + 1).max(0) as usize, (b + 1).max(0) as usize)
+}
+
+/// dlib's bilinear `resize_image` for 8-bit greyscale images (same input and output
+/// pixel type), bit-exact: see the module docs. `out` must already have its size.
+pub(crate) fn resize_bilinear(input: GrayView<'_>, out: &mut Gray) {
+    let (in_w, in_h) = (input.width, input.height);
+    let (out_w, out_h) = (out.width, out.height);
+    if out_w == 0 || out_h == 0 || in_w == 0 || in_h == 0 {
+        return;
+    }
+    let x_scale = (in_w as f64 - 1.0) / (out_w.saturating_sub(1).max(1) as f64);
+    let y_scale = (in_h as f64 - 1.0) / (out_h.saturating_sub(1).max(1) as f64);
+    let src = input.data;
+    let mut y = -y_scale;
+    for r in 0..out_h {
+        y += y_scale;
+        let top = y.floor() as usize;
+        let bottom = (top + 1).min(in_h - 1);
+        let tb_frac = y - top as f64;
+        let row_t = &src[top * in_w..(top + 1) * in_w];
+        let row_b = &src[bottom * in_w..(bottom + 1) * in_w];
+        let orow = &mut out.data[r * out_w..(r + 1) * out_w];
+
+        // SIMD part: 4 columns at a time, float arithmetic.
+        let x0 = -4.0 * x_scale;
+        let tbf = tb_frac as f32;
+        let inv_tbf = (1.0 - tb_frac) as f32;
+        let step = (4.0 * x_scale) as f32;
+        let mut lanes = [
+            x0 as f32,
+            (x0 + x_scale) as f32,
+            (x0 + 2.0 * x_scale) as f32,
+            (x0 + 3.0 * x_scale) as f32,
+        ];
+        let mut c = 0usize;
+        loop {
+            let mut left = [0usize; 4];
+            let mut frac = [0f32; 4];
+            for k in 0..4 {
+                lanes[k] += step;
+                // _mm_cvttps_epi32: truncation (values are >= 0 here)
+                let li = lanes[k] as i32;
+                left[k] = li.max(0) as usize;
+                frac[k] = lanes[k] - li as f32;
+            }
+            if left[3] + 1 >= in_w || c + 4 > out_w {
+                // dlib breaks when the right neighbour of lane 3 leaves the image; the
+                // second test only guards our slice indexing (dlib's images always
+                // satisfy it before the first one fires for these scales).
+                break;
+            }
+            for k in 0..4 {
+                let inv = 1.0 - frac[k];
+                let tlf = inv_tbf * inv;
+                let trf = inv_tbf * frac[k];
+                let blf = tbf * inv;
+                let brf = tbf * frac[k];
+                let tl = f32::from(row_t[left[k]]);
+                let tr = f32::from(row_t[left[k] + 1]);
+                let bl = f32::from(row_b[left[k]]);
+                let br = f32::from(row_b[left[k] + 1]);
+                let v = tlf * tl + trf * tr + blf * bl + brf * br;
+                orow[c + k] = (f64::from(v) + 0.5) as u8;
+            }
+            c += 4;
+        }
+        // Scalar tail (double positions, float blend, truncation to u8 with clamping).
+        let mut x = -x_scale + c as f64 * x_scale;
+        while c < out_w {
+            x += x_scale;
+            let left = x.floor().max(0.0) as usize;
+            let left = left.min(in_w - 1);
+            let right = (left + 1).min(in_w - 1);
+            let lr = (x - left as f64) as f32;
+            let tl = f32::from(row_t[left]);
+            let tr = f32::from(row_t[right]);
+            let bl = f32::from(row_b[left]);
+            let br = f32::from(row_b[right]);
+            let a = (1.0 - lr) * tl + lr * tr;
+            let b = (1.0 - lr) * bl + lr * br;
+            let temp = ((1.0 - tb_frac) * f64::from(a) + tb_frac * f64::from(b)) as f32;
+            orow[c] = temp.clamp(0.0, 255.0) as u8;
+            c += 1;
+        }
+    }
+}
+
+/// One `pyramid_down<6>` step (public for tests against dlib's `pyramid_down(6)`).
+pub fn down6(input: GrayView<'_>, out: &mut Gray) {
+    let (w, h) = down6_size(input.width, input.height);
+    out.set_size(w, h);
+    resize_bilinear(input, out);
+}
+
+/// One `pyramid_up` step (via `pyramid_down<2>`).
+pub fn up2(input: GrayView<'_>, out: &mut Gray) {
+    let (w, h) = up2_size(input.width, input.height);
+    out.set_size(w, h);
+    resize_bilinear(input, out);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_follow_dlib() {
+        assert_eq!(down6_size(640, 480), (533, 400));
+        assert_eq!(up2_size(10, 8), (22, 17));
+    }
+
+    #[test]
+    fn constant_image_stays_constant() {
+        let input = Gray {
+            width: 37,
+            height: 23,
+            data: vec![77; 37 * 23],
+        };
+        let mut out = Gray::default();
+        down6(input.view(), &mut out);
+        assert!(out.data.iter().all(|&v| v == 77));
+        up2(input.view(), &mut out);
+        assert!(out.data.iter().all(|&v| v == 77));
+    }
+}

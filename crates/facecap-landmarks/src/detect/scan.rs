@@ -1,0 +1,506 @@
+//! Sliding-window scoring of fHOG images with linear filters, as dlib's
+//! `scan_fhog_pyramid` (`build_fhog_filterbank`, `apply_filters_to_fhog`,
+//! `detect_from_fhog_pyramid`).
+//!
+//! A sub-detector is 31 filters `F_i` of `fh x fw` cells and a threshold `b`. The
+//! score of the window whose centre cell is `(r, c)` is
+//!
+//! ```text
+//! s(r, c) = sum_i sum_{m < fh, n < fw} F_i[m][n] * H_i[r - fh/2 + m][c - fw/2 + n]
+//! ```
+//!
+//! evaluated for `fh/2 <= r < rows - (fh-1)/2` (and likewise `c`); a window is a
+//! candidate when `s >= b + adjust_threshold` and its confidence is `s - b`.
+//!
+//! dlib approximates each `F_i` by its SVD `F_i = sum_j s_j u_j v_j^T` truncated to
+//! the singular values `>= max(1e-4, 0.001 s_max)` and uses the separable form (a row
+//! pass with `v_j sqrt(s_j)`, then a column pass with `u_j sqrt(s_j)`) whenever that
+//! is cheaper than the full filters, which it is for the frontal face detector (54-66
+//! rank-1 terms per sub-detector instead of 31 full 10 x 10 filters). We do the same,
+//! with the same float association of the 10-tap sums (three interleaved
+//! accumulators in dlib's 8-column SIMD blocks, a plain running sum in its scalar
+//! tail), so scores agree with dlib up to the last bits of the SVD.
+
+use nalgebra::DMatrix;
+
+use super::fhog::{FhogImage, PLANES};
+
+/// One rank-1 term of a separable filter bank.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SeparableTerm {
+    /// Feature plane the term applies to.
+    pub plane: usize,
+    /// Horizontal taps (`fw`), `v_j sqrt(s_j)`.
+    pub row: Vec<f32>,
+    /// Vertical taps (`fh`), `u_j sqrt(s_j)`.
+    pub col: Vec<f32>,
+}
+
+/// The filters of one sub-detector.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FilterBank {
+    /// Filter width in cells.
+    pub fw: usize,
+    /// Filter height in cells.
+    pub fh: usize,
+    /// Full filters, `31 x fh x fw` (plane-major, row-major), f32 as dlib.
+    pub full: Vec<f32>,
+    /// Rank-1 terms in dlib's order (plane ascending, singular value descending).
+    pub terms: Vec<SeparableTerm>,
+    /// Detection threshold `b` (the last weight).
+    pub threshold: f64,
+    /// Whether dlib would use the full filters (more rank-1 terms than
+    /// `31 * min(fh, fw) / 3`).
+    pub use_full: bool,
+}
+
+impl FilterBank {
+    /// Builds the bank from a weight vector of length `31 * fh * fw + 1`.
+    pub fn new(weights: &[f64], fw: usize, fh: usize) -> Self {
+        let size = fw * fh;
+        let mut full = Vec::with_capacity(PLANES * size);
+        let mut terms = Vec::new();
+        for i in 0..PLANES {
+            let f = DMatrix::from_row_slice(fh, fw, &weights[i * size..(i + 1) * size]);
+            full.extend(weights[i * size..(i + 1) * size].iter().map(|&v| v as f32));
+            let svd = f.svd(true, true);
+            let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+                continue;
+            };
+            let s = svd.singular_values;
+            let mut order: Vec<usize> = (0..s.len()).collect();
+            order.sort_by(|&a, &b| s[b].total_cmp(&s[a]));
+            let smax = s.iter().copied().fold(0.0f64, f64::max);
+            let thresh = (smax * 0.001).max(1e-4);
+            for &j in &order {
+                let sj = s[j];
+                if !(sj >= thresh || sj <= -thresh) {
+                    continue;
+                }
+                let k = sj.sqrt();
+                terms.push(SeparableTerm {
+                    plane: i,
+                    row: (0..fw).map(|n| (v_t[(j, n)] * k) as f32).collect(),
+                    col: (0..fh).map(|m| (u[(m, j)] * k) as f32).collect(),
+                });
+            }
+        }
+        let use_full = terms.len() as f64 > (PLANES * fw.min(fh)) as f64 / 3.0;
+        FilterBank {
+            fw,
+            fh,
+            full,
+            terms,
+            threshold: weights.get(PLANES * size).copied().unwrap_or(0.0),
+            use_full,
+        }
+    }
+}
+
+/// The valid output area of a filtering: rows `r0..r1`, columns `c0..c1` (exclusive).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Area {
+    /// First valid row.
+    pub r0: usize,
+    /// One past the last valid row.
+    pub r1: usize,
+    /// First valid column.
+    pub c0: usize,
+    /// One past the last valid column.
+    pub c1: usize,
+}
+
+/// The `n`-tap dot product `sum_k a(k) * f[k]` with dlib's association: in SIMD blocks
+/// three accumulators (`k = 0, 3, 6, ...`, `1, 4, ...`, `2, 5, ...`, the taps past the
+/// last full triple added to the first) combined as `acc0 + (acc1 + acc2)`; in the
+/// scalar tail a running sum.
+#[inline(always)]
+fn dot_dlib(simd: bool, f: &[f32], a: impl Fn(usize) -> f32) -> f32 {
+    let n = f.len();
+    if simd {
+        let (mut t0, mut t1, mut t2) = (0f32, 0f32, 0f32);
+        let mut k = 0;
+        while k + 2 < n {
+            t0 += a(k) * f[k];
+            t1 += a(k + 1) * f[k + 1];
+            t2 += a(k + 2) * f[k + 2];
+            k += 3;
+        }
+        while k < n {
+            t0 += a(k) * f[k];
+            k += 1;
+        }
+        t0 + (t1 + t2)
+    } else {
+        let mut t = 0f32;
+        for (k, &fk) in f.iter().enumerate() {
+            t += a(k) * fk;
+        }
+        t
+    }
+}
+
+/// First column handled by dlib's scalar tail for output columns `c0..c1`.
+fn simd_end(c0: usize, c1: usize) -> usize {
+    let mut c = c0;
+    while c + 7 < c1 {
+        c += 8;
+    }
+    c
+}
+
+/// Scratch buffers of [`saliency`].
+#[derive(Debug, Clone, Default)]
+pub struct ScanScratch {
+    rowpass: Vec<f32>,
+    acc: Vec<f32>,
+}
+
+/// The score image of one sub-detector on one fHOG image, written to `out`
+/// (`height x width`, only [`Area`] is meaningful). Returns the valid area, or `None`
+/// when the image is smaller than the filter or the bank has no terms.
+pub fn saliency(bank: &FilterBank, feats: &FhogImage, scratch: &mut ScanScratch, out: &mut Vec<f32>) -> Option<Area> {
+    let (w, h) = (feats.width, feats.height);
+    let (fw, fh) = (bank.fw, bank.fh);
+    if w < fw || h < fh || w == 0 || h == 0 {
+        return None;
+    }
+    let area = Area {
+        r0: fh / 2,
+        r1: h - (fh - 1) / 2,
+        c0: fw / 2,
+        c1: w - (fw - 1) / 2,
+    };
+    out.clear();
+    out.resize(w * h, 0.0);
+    if bank.use_full {
+        full_filter(bank, feats, area, out);
+        return Some(area);
+    }
+    if bank.terms.is_empty() {
+        return None;
+    }
+    scratch.rowpass.clear();
+    scratch.rowpass.resize(w * h, 0.0);
+    let tail = simd_end(area.c0, area.c1);
+    let (hr, hc) = (fh / 2, fw / 2);
+    for (t_idx, term) in bank.terms.iter().enumerate() {
+        let plane = feats.plane(term.plane);
+        // row pass on every row (rows that are entirely zero give zeros)
+        for r in 0..h {
+            let src = &plane[r * w..(r + 1) * w];
+            let dst = &mut scratch.rowpass[r * w..(r + 1) * w];
+            if src.iter().all(|&v| v == 0.0) {
+                dst[area.c0..area.c1].iter_mut().for_each(|v| *v = 0.0);
+                continue;
+            }
+            row_pass(src, &term.row, area.c0, tail, area.c1, hc, dst);
+        }
+        // column pass: dlib's three accumulators in its SIMD columns, written as
+        // whole-row operations so they vectorise; a running sum in the scalar tail
+        let rp = &scratch.rowpass;
+        let nb = tail - area.c0;
+        scratch.acc.resize(3 * w, 0.0);
+        let (a0, rest) = scratch.acc.split_at_mut(w);
+        let (a1, a2) = rest.split_at_mut(w);
+        let n = term.col.len();
+        let triples = if n >= 3 { (n - 3) / 3 + 1 } else { 0 };
+        for r in area.r0..area.r1 {
+            let base = r - hr;
+            let row = |m: usize| &rp[(base + m) * w + area.c0..(base + m) * w + tail];
+            let (a0, a1, a2) = (&mut a0[..nb], &mut a1[..nb], &mut a2[..nb]);
+            a0.fill(0.0);
+            a1.fill(0.0);
+            a2.fill(0.0);
+            for t in 0..triples {
+                let m = 3 * t;
+                let (f0, f1, f2) = (term.col[m], term.col[m + 1], term.col[m + 2]);
+                for (((x0, x1), x2), ((p0, p1), p2)) in a0
+                    .iter_mut()
+                    .zip(a1.iter_mut())
+                    .zip(a2.iter_mut())
+                    .zip(row(m).iter().zip(row(m + 1)).zip(row(m + 2)))
+                {
+                    *x0 += p0 * f0;
+                    *x1 += p1 * f1;
+                    *x2 += p2 * f2;
+                }
+            }
+            for m in 3 * triples..n {
+                let f = term.col[m];
+                for (x0, p) in a0.iter_mut().zip(row(m)) {
+                    *x0 += p * f;
+                }
+            }
+            let orow = &mut out[r * w + area.c0..r * w + tail];
+            if t_idx == 0 {
+                for (o, ((x0, x1), x2)) in orow.iter_mut().zip(a0.iter().zip(a1.iter()).zip(a2.iter())) {
+                    *o = x0 + (x1 + x2);
+                }
+            } else {
+                for (o, ((x0, x1), x2)) in orow.iter_mut().zip(a0.iter().zip(a1.iter()).zip(a2.iter())) {
+                    *o += x0 + (x1 + x2);
+                }
+            }
+            for c in tail..area.c1 {
+                let v = dot_dlib(false, &term.col, |m| rp[(base + m) * w + c]);
+                if t_idx == 0 {
+                    out[r * w + c] = v;
+                } else {
+                    out[r * w + c] += v;
+                }
+            }
+        }
+    }
+    Some(area)
+}
+
+/// Horizontal pass for output columns `c0..c1` of one row; `tail` is the first scalar
+/// column. Written so the SIMD part vectorises across columns.
+#[inline]
+fn row_pass(src: &[f32], f: &[f32], c0: usize, tail: usize, c1: usize, hc: usize, dst: &mut [f32]) {
+    let n = f.len();
+    if n == 10 {
+        let f: [f32; 10] = [f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], f[9]];
+        for c in c0..tail {
+            let s = &src[c - hc..c - hc + 10];
+            let t0 = (((s[0] * f[0]) + s[3] * f[3]) + s[6] * f[6]) + s[9] * f[9];
+            let t1 = ((s[1] * f[1]) + s[4] * f[4]) + s[7] * f[7];
+            let t2 = ((s[2] * f[2]) + s[5] * f[5]) + s[8] * f[8];
+            dst[c] = t0 + (t1 + t2);
+        }
+    } else {
+        for c in c0..tail {
+            dst[c] = dot_dlib(true, f, |k| src[c - hc + k]);
+        }
+    }
+    for c in tail..c1 {
+        dst[c] = dot_dlib(false, f, |k| src[c - hc + k]);
+    }
+}
+
+/// Full (non-separable) filtering, dlib's `float_spatially_filter_image` summed over
+/// planes. Only used for models whose filters are not low rank.
+fn full_filter(bank: &FilterBank, feats: &FhogImage, area: Area, out: &mut [f32]) {
+    let (w, fw, fh) = (feats.width, bank.fw, bank.fh);
+    let tail = simd_end(area.c0, area.c1);
+    let (hr, hc) = (fh / 2, fw / 2);
+    for i in 0..PLANES {
+        let plane = feats.plane(i);
+        let f = &bank.full[i * fw * fh..(i + 1) * fw * fh];
+        for r in area.r0..area.r1 {
+            for c in area.c0..area.c1 {
+                let v = if c < tail {
+                    let (mut t0, mut t1, mut t2) = (0f32, 0f32, 0f32);
+                    for m in 0..fh {
+                        let row = &plane[(r - hr + m) * w + c - hc..];
+                        let fr = &f[m * fw..(m + 1) * fw];
+                        let mut n = 0;
+                        while n + 2 < fw {
+                            t0 += row[n] * fr[n];
+                            t1 += row[n + 1] * fr[n + 1];
+                            t2 += row[n + 2] * fr[n + 2];
+                            n += 3;
+                        }
+                        while n < fw {
+                            t0 += row[n] * fr[n];
+                            n += 1;
+                        }
+                    }
+                    t0 + (t1 + t2)
+                } else {
+                    let mut t = 0f32;
+                    for m in 0..fh {
+                        for n in 0..fw {
+                            t += plane[(r - hr + m) * w + c - hc + n] * f[m * fw + n];
+                        }
+                    }
+                    t
+                };
+                if i == 0 {
+                    out[r * w + c] = v;
+                } else {
+                    out[r * w + c] += v;
+                }
+            }
+        }
+    }
+}
+
+/// Slow reference: the exact (full-rank) window scores in f64.
+pub fn saliency_reference_full(weights: &[f64], fw: usize, fh: usize, feats: &FhogImage) -> Option<(Area, Vec<f64>)> {
+    let (w, h) = (feats.width, feats.height);
+    if w < fw || h < fh || w == 0 {
+        return None;
+    }
+    let area = Area {
+        r0: fh / 2,
+        r1: h - (fh - 1) / 2,
+        c0: fw / 2,
+        c1: w - (fw - 1) / 2,
+    };
+    let mut out = vec![0.0; w * h];
+    for r in area.r0..area.r1 {
+        for c in area.c0..area.c1 {
+            let mut s = 0.0;
+            for i in 0..PLANES {
+                let p = feats.plane(i);
+                for m in 0..fh {
+                    for n in 0..fw {
+                        s += weights[i * fw * fh + m * fw + n] * f64::from(p[(r - fh / 2 + m) * w + c - fw / 2 + n]);
+                    }
+                }
+            }
+            out[r * w + c] = s;
+        }
+    }
+    Some((area, out))
+}
+
+/// Slow reference for the separable path: the same terms evaluated with plain
+/// running sums in f64 (no association tricks).
+pub fn saliency_reference_separable(bank: &FilterBank, feats: &FhogImage) -> Option<(Area, Vec<f64>)> {
+    let (w, h) = (feats.width, feats.height);
+    let (fw, fh) = (bank.fw, bank.fh);
+    if w < fw || h < fh || w == 0 || bank.terms.is_empty() {
+        return None;
+    }
+    let area = Area {
+        r0: fh / 2,
+        r1: h - (fh - 1) / 2,
+        c0: fw / 2,
+        c1: w - (fw - 1) / 2,
+    };
+    let mut out = vec![0.0; w * h];
+    for t in &bank.terms {
+        let p = feats.plane(t.plane);
+        for r in area.r0..area.r1 {
+            for c in area.c0..area.c1 {
+                let mut s = 0.0;
+                for m in 0..fh {
+                    let mut rs = 0.0;
+                    for n in 0..fw {
+                        rs += f64::from(t.row[n]) * f64::from(p[(r - fh / 2 + m) * w + c - fw / 2 + n]);
+                    }
+                    s += f64::from(t.col[m]) * rs;
+                }
+                out[r * w + c] += s;
+            }
+        }
+    }
+    Some((area, out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// dlib's loops written literally, one output pixel at a time.
+    fn literal(bank: &FilterBank, feats: &FhogImage) -> Option<(Area, Vec<f32>)> {
+        let (w, h, fw, fh) = (feats.width, feats.height, bank.fw, bank.fh);
+        let area = Area {
+            r0: fh / 2,
+            r1: h - (fh - 1) / 2,
+            c0: fw / 2,
+            c1: w - (fw - 1) / 2,
+        };
+        let tail = simd_end(area.c0, area.c1);
+        let mut out = vec![0f32; w * h];
+        for (t, term) in bank.terms.iter().enumerate() {
+            let p = feats.plane(term.plane);
+            let mut scratch = vec![0f32; w * h];
+            for r in 0..h {
+                for c in area.c0..area.c1 {
+                    scratch[r * w + c] = dot_dlib(c < tail, &term.row, |k| p[r * w + c - fw / 2 + k]);
+                }
+            }
+            for r in area.r0..area.r1 {
+                for c in area.c0..area.c1 {
+                    let v = dot_dlib(c < tail, &term.col, |m| scratch[(r - fh / 2 + m) * w + c]);
+                    if t == 0 {
+                        out[r * w + c] = v;
+                    } else {
+                        out[r * w + c] += v;
+                    }
+                }
+            }
+        }
+        Some((area, out))
+    }
+
+    fn random_case(seed: u64, w: usize, h: usize) -> (Vec<f64>, FhogImage) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        // low-rank filters (rank 1-3 per plane) like a trained detector
+        let mut weights = Vec::new();
+        for _ in 0..PLANES {
+            let rank = rng.random_range(1..=3);
+            let mut f = vec![0.0f64; 100];
+            for _ in 0..rank {
+                let u: Vec<f64> = (0..10).map(|_| rng.random_range(-0.1..0.1)).collect();
+                let v: Vec<f64> = (0..10).map(|_| rng.random_range(-0.1..0.1)).collect();
+                for m in 0..10 {
+                    for n in 0..10 {
+                        f[m * 10 + n] += u[m] * v[n];
+                    }
+                }
+            }
+            weights.extend(f);
+        }
+        weights.push(0.5);
+        let mut feats = FhogImage {
+            width: w,
+            height: h,
+            data: vec![0.0; PLANES * w * h],
+        };
+        for v in feats.data.iter_mut() {
+            *v = rng.random_range(0.0..0.3);
+        }
+        (weights, feats)
+    }
+
+    #[test]
+    fn separable_kernel_equals_literal_dlib_loops_bit_for_bit() {
+        for (seed, w, h) in [(1u64, 40usize, 30usize), (2, 10, 10), (3, 27, 19), (4, 61, 12)] {
+            let (weights, feats) = random_case(seed, w, h);
+            let bank = FilterBank::new(&weights, 10, 10);
+            assert!(!bank.use_full && !bank.terms.is_empty());
+            let mut scratch = ScanScratch::default();
+            let mut out = Vec::new();
+            let area = saliency(&bank, &feats, &mut scratch, &mut out).unwrap();
+            let (area2, lit) = literal(&bank, &feats).unwrap();
+            assert_eq!(area, area2);
+            for r in area.r0..area.r1 {
+                for c in area.c0..area.c1 {
+                    assert_eq!(
+                        out[r * w + c].to_bits(),
+                        lit[r * w + c].to_bits(),
+                        "seed {seed} ({r},{c})"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn separable_scores_approximate_the_full_filters() {
+        let (weights, feats) = random_case(9, 45, 33);
+        let bank = FilterBank::new(&weights, 10, 10);
+        let mut scratch = ScanScratch::default();
+        let mut out = Vec::new();
+        let area = saliency(&bank, &feats, &mut scratch, &mut out).unwrap();
+        let (_, full) = saliency_reference_full(&weights, 10, 10, &feats).unwrap();
+        let (_, sep) = saliency_reference_separable(&bank, &feats).unwrap();
+        for r in area.r0..area.r1 {
+            for c in area.c0..area.c1 {
+                let i = r * 45 + c;
+                assert!(
+                    (f64::from(out[i]) - sep[i]).abs() < 1e-4,
+                    "f32 vs f64 separable at ({r},{c})"
+                );
+                assert!((sep[i] - full[i]).abs() < 1e-3, "separable vs full at ({r},{c})");
+            }
+        }
+    }
+}
