@@ -29,6 +29,7 @@
 pub mod defaults;
 pub mod deform;
 pub mod error;
+pub mod retarget;
 pub mod rig;
 pub mod set;
 pub mod synthetic;
