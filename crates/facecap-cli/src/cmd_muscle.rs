@@ -1,20 +1,336 @@
-//! `facecap muscle ...`.
+//! `facecap muscle ...`: muscle-model commands (Mramornov 2015; crate `facecap-muscle`).
+//!
+//! * `facecap muscle bake --mesh MESH.glb|.obj --landmark-map MAP.json [--muscles SET.json]
+//!   --out RIG.glb` — writes the mesh with one morph target per muscle at full contraction
+//!   (named after the muscle) plus `jaw_open` (jaw at its largest angle): muscle-generated
+//!   blendshapes for any mesh with a 68-landmark map. Existing targets are kept.
+//! * `facecap muscle track VIDEO --mesh MESH.glb|.obj --landmark-map MAP.json
+//!   [--muscles SET.json] --out DIR` — tracks landmarks (HOG + ERT + LK tracker), then
+//!   contractions, jaw and head pose per frame (thesis Algorithm 2), and writes in `DIR`:
+//!   `contractions.csv` (`frame,timestamp,success,confidence`, one column per muscle in
+//!   `[0, 1]`, then `jaw` in radians) and `posed.glb`, the baked rig animated with one
+//!   keyframe per frame (muscle weights = contractions, `jaw_open` weight = jaw / max angle,
+//!   a linearisation of the rotation). `--landmarks LANDMARKS.csv` (OpenFace-style
+//!   `x_0..x_67,y_0..y_67`, as written by `facecap landmarks`) replaces the video's landmark
+//!   tracking; then VIDEO is only used for the frame size when `--width/--height` are absent.
+//!
+//! Without `--muscles` the default 11-muscle set is placed from the mesh's landmarks. The
+//! camera is `Intrinsics::default_for_frame` (f = max(width, height)).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use facecap_core::camera::Intrinsics;
+use facecap_core::csv::{FrameCsvWriter, FrameRow};
+use facecap_core::gltf_io::MorphAnimation;
+use facecap_core::landmark_map::LandmarkMap;
+use facecap_core::landmarks::Landmarks68;
+use facecap_core::mesh::MorphMesh;
+use facecap_muscle::retarget::{bake, JAW_TARGET};
+use facecap_muscle::rig::MuscleRig;
+use facecap_muscle::set::MuscleSet;
+use facecap_muscle::track::{
+    MuscleTracker, SolveMode, TrackInput, TrackModel, TrackOutput, TrackParams, TrackState, TrackWorkspace,
+};
+use nalgebra::{Point2, Point3};
 
 /// Muscle subcommands.
 #[derive(Debug, clap::Subcommand)]
 pub enum Command {
     /// Track muscle contractions and jaw rotation from a video.
-    Track {
-        /// Video file.
-        video: PathBuf,
-    },
+    Track(TrackArgs),
+    /// Bake each muscle at full contraction (and the open jaw) into named morph targets.
+    Bake(BakeArgs),
+}
+
+/// `facecap muscle bake`.
+#[derive(Debug, clap::Args)]
+pub struct BakeArgs {
+    /// Mesh (.glb/.gltf or .obj).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// iBUG-68 landmark -> vertex map (JSON).
+    #[arg(long)]
+    pub landmark_map: PathBuf,
+    /// Muscle set JSON (default: the 11-muscle set placed from the landmarks).
+    #[arg(long)]
+    pub muscles: Option<PathBuf>,
+    /// Output rig (.glb).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write the muscle set used (JSON) to this path.
+    #[arg(long)]
+    pub write_set: Option<PathBuf>,
+}
+
+/// `facecap muscle track`.
+#[derive(Debug, clap::Args)]
+pub struct TrackArgs {
+    /// Video file (or image folder).
+    pub video: PathBuf,
+    /// Mesh (.glb/.gltf or .obj).
+    #[arg(long)]
+    pub mesh: PathBuf,
+    /// iBUG-68 landmark -> vertex map (JSON).
+    #[arg(long)]
+    pub landmark_map: PathBuf,
+    /// Muscle set JSON (default: the 11-muscle set placed from the landmarks).
+    #[arg(long)]
+    pub muscles: Option<PathBuf>,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Use these landmarks (OpenFace-style CSV) instead of tracking the video.
+    #[arg(long)]
+    pub landmarks: Option<PathBuf>,
+    /// Frame width for the default camera (with --landmarks; else read from the video).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Frame height for the default camera.
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Contraction solver: `global` (joint pose/jaw/contractions) or `point` (thesis
+    /// point-by-point).
+    #[arg(long, default_value = "global")]
+    pub solver: String,
+    /// dlib 68-point model (default: the model cache).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
 }
 
 /// Runs a muscle subcommand.
 pub fn run(cmd: Command) -> anyhow::Result<std::process::ExitCode> {
     match cmd {
-        Command::Track { video } => anyhow::bail!("facecap muscle track is not implemented yet ({})", video.display()),
+        Command::Track(a) => run_track(a),
+        Command::Bake(a) => run_bake(a),
     }
+}
+
+/// Reads a .glb/.gltf (with its targets) or an .obj (no targets).
+fn read_mesh(path: &Path) -> anyhow::Result<MorphMesh> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let mm = match ext.as_str() {
+        "glb" | "gltf" => facecap_core::gltf_io::read_morph_mesh(path)?,
+        "obj" => MorphMesh {
+            base: facecap_core::obj::read_obj(path)?,
+            targets: Vec::new(),
+        },
+        _ => anyhow::bail!("--mesh {}: expected a .glb, .gltf or .obj file", path.display()),
+    };
+    Ok(mm)
+}
+
+/// Mesh, map, muscle set and rig.
+fn load(
+    mesh: &Path,
+    map: &Path,
+    muscles: Option<&Path>,
+) -> anyhow::Result<(MorphMesh, LandmarkMap, MuscleSet, MuscleRig)> {
+    let mm = read_mesh(mesh).with_context(|| format!("reading {}", mesh.display()))?;
+    let map = LandmarkMap::from_json_file(map)?;
+    map.validate(mm.base.num_vertices())?;
+    let pos: Vec<Point3<f64>> = mm.base.positions.iter().map(|p| p.cast()).collect();
+    let set = match muscles {
+        Some(p) => MuscleSet::from_json_file(p)?,
+        None => {
+            let lm = facecap_muscle::defaults::landmark_positions(&map, &pos);
+            facecap_muscle::defaults::default_muscle_set(&lm, &pos)
+                .context("placing the default muscle set from the landmark map")?
+        }
+    };
+    let rig = MuscleRig::from_mesh(&set, &mm.base)?;
+    Ok((mm, map, set, rig))
+}
+
+fn run_bake(a: BakeArgs) -> anyhow::Result<std::process::ExitCode> {
+    let (mm, _map, set, rig) = load(&a.mesh, &a.landmark_map, a.muscles.as_deref())?;
+    let baked = bake(&rig, &mm)?;
+    facecap_core::gltf_io::write_glb(&a.out, &baked, None).with_context(|| format!("writing {}", a.out.display()))?;
+    if let Some(p) = &a.write_set {
+        std::fs::write(p, set.to_json_string()?).with_context(|| format!("writing {}", p.display()))?;
+    }
+    eprintln!(
+        "{}: {} muscles + {} baked as morph targets ({} vertices); wrote {}",
+        a.mesh.display(),
+        rig.num_muscles(),
+        if rig.jaw().is_some() { JAW_TARGET } else { "no jaw" },
+        rig.base().len(),
+        a.out.display()
+    );
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// Per-frame landmark source: a CSV or the video tracker.
+struct Landmarks {
+    frames: Vec<(u64, f64, Option<Landmarks68>, f64)>,
+    width: u32,
+    height: u32,
+}
+
+fn landmarks_from_csv(path: &Path, a: &TrackArgs) -> anyhow::Result<Landmarks> {
+    let recs = facecap_core::csv::read_landmarks_csv(path)?;
+    let (width, height) = match (a.width, a.height) {
+        (Some(w), Some(h)) => (w, h),
+        _ => {
+            let src = facecap_core::video::open_source(&a.video, &Default::default()).with_context(|| {
+                format!(
+                    "opening {} for the frame size (or give --width/--height)",
+                    a.video.display()
+                )
+            })?;
+            (src.info().width, src.info().height)
+        }
+    };
+    Ok(Landmarks {
+        frames: recs
+            .into_iter()
+            .map(|r| (r.frame, r.timestamp, r.landmarks.filter(|_| r.success), r.confidence))
+            .collect(),
+        width,
+        height,
+    })
+}
+
+fn landmarks_from_video(a: &TrackArgs) -> anyhow::Result<Landmarks> {
+    use facecap_core::video::{open_source, Frame, SourceOptions};
+    use facecap_landmarks::detect::FaceDetector;
+    use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
+    use facecap_landmarks::tracker::one_euro::OneEuroParams;
+    use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
+    let model_path = crate::cmd_landmarks::resolve_model(a.model.as_deref())?;
+    let sp = ShapePredictor::from_file(&model_path)
+        .with_context(|| format!("loading {}", model_path.display()))?
+        .with_params(ErtParams {
+            output: OutputPrecision::SubPixel,
+        });
+    let det = FaceDetector::default_model().context("loading the face detector")?;
+    let tracker = LandmarkTracker::new(
+        det,
+        sp,
+        TrackerParams {
+            filter: Some(OneEuroParams::default()),
+            ..TrackerParams::default()
+        },
+    )?;
+    let mut ws = tracker.new_workspace();
+    let mut state = TrackerState::new();
+    let mut out = TrackedFrame::default();
+    let mut src =
+        open_source(&a.video, &SourceOptions::default()).with_context(|| format!("opening {}", a.video.display()))?;
+    let (width, height) = (src.info().width, src.info().height);
+    let mut frame = Frame::default();
+    let mut frames = Vec::new();
+    while src.read_into(&mut frame)? {
+        tracker
+            .track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut out)
+            .with_context(|| format!("frame {}", frame.index))?;
+        frames.push((
+            frame.index,
+            frame.timestamp_s.max(0.0),
+            out.success.then(|| out.landmarks.clone()),
+            out.confidence,
+        ));
+    }
+    Ok(Landmarks { frames, width, height })
+}
+
+fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
+    let mode = match a.solver.as_str() {
+        "global" => SolveMode::Global,
+        "point" => SolveMode::PointByPoint,
+        s => anyhow::bail!("--solver {s:?}: expected \"global\" or \"point\""),
+    };
+    let (mm, map, _set, rig) = load(&a.mesh, &a.landmark_map, a.muscles.as_deref())?;
+    let lms = match &a.landmarks {
+        Some(p) => landmarks_from_csv(p, &a).with_context(|| format!("reading {}", p.display()))?,
+        None => landmarks_from_video(&a)?,
+    };
+    let camera = Intrinsics::default_for_frame(lms.width, lms.height)?;
+    let model = TrackModel::from_landmarks(&rig, &map, &[], 4)?;
+    let tracker = MuscleTracker::new(
+        model.clone(),
+        camera,
+        TrackParams {
+            mode,
+            ..TrackParams::default()
+        },
+    )?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut names: Vec<String> = rig.names().to_vec();
+    names.push("jaw".into());
+    let mut csv = FrameCsvWriter::create(a.out.join("contractions.csv"), &names)?;
+    let mut ws = TrackWorkspace::new(&model);
+    let mut state = TrackState::new(&model);
+    let mut out = TrackOutput::new(&model);
+    let k = model.num_points();
+    let mut points = vec![Point2::origin(); k];
+    let mut values = vec![f64::NAN; names.len()];
+    let mut anim = MorphAnimation::default();
+    let baked = bake(&rig, &mm)?;
+    let n_old = mm.targets.len();
+    let max_jaw = rig.max_jaw();
+    let (mut n, mut ok) = (0u64, 0u64);
+    let mut last_t = -1.0f64;
+    for (index, t, lm, conf) in &lms.frames {
+        values.fill(f64::NAN);
+        let mut success = false;
+        if let Some(l) = lm {
+            for (slot, i) in model.landmark_of_point().iter().enumerate() {
+                if let Some(i) = i {
+                    points[slot] = l.points[*i];
+                }
+            }
+            let input = TrackInput {
+                points: &points,
+                weights: None,
+            };
+            match tracker.solve_into(&input, &mut ws, &mut state, &mut out) {
+                Ok(rep) if rep.rms_px.is_finite() => {
+                    values[..rig.num_muscles()].copy_from_slice(&out.contractions);
+                    values[rig.num_muscles()] = out.jaw;
+                    success = true;
+                }
+                Ok(_) => {}
+                Err(e) => eprintln!("frame {index}: {e}"),
+            }
+        }
+        csv.write_row(&FrameRow {
+            frame: *index,
+            timestamp: *t,
+            success,
+            confidence: if success { *conf } else { 0.0 },
+            values: &values,
+        })?;
+        if *t > last_t {
+            let mut w = vec![0.0f32; baked.targets.len()];
+            for (i, c) in state.contractions.iter().enumerate() {
+                w[n_old + i] = *c as f32;
+            }
+            if rig.jaw().is_some() && max_jaw > 0.0 {
+                w[n_old + rig.num_muscles()] = (state.jaw / max_jaw) as f32;
+            }
+            anim.times_s.push(*t as f32);
+            anim.weights.push(w);
+            last_t = *t;
+        }
+        n += 1;
+        ok += u64::from(success);
+    }
+    csv.finish()?;
+    let glb = a.out.join("posed.glb");
+    if !anim.times_s.is_empty() {
+        facecap_core::gltf_io::write_glb(&glb, &baked, Some(&anim))
+            .with_context(|| format!("writing {}", glb.display()))?;
+    }
+    eprintln!(
+        "{}: {n} frames, contractions on {ok}; wrote {} and {}",
+        a.video.display(),
+        a.out.join("contractions.csv").display(),
+        glb.display()
+    );
+    Ok(std::process::ExitCode::SUCCESS)
 }
