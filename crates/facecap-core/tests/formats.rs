@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use facecap_core::formats::dlib_xml::{
     dlib_xml_to_string, parse_dlib_xml, read_dlib_xml, write_dlib_xml, DlibBox, DlibDataset, DlibImage,
 };
-use facecap_core::formats::ljson::{parse_ljson, read_ljson, LjsonPoints};
+use facecap_core::formats::ljson::{ljson_to_string, parse_ljson, read_ljson, write_ljson, Ljson, LjsonPoints};
 use facecap_core::formats::pts::{parse_pts, pts_to_string, read_pts, read_pts_points, write_pts, write_pts_points};
 use facecap_core::landmarks::{Landmarks68, Rect};
 use facecap_core::paths::shared_data_file;
@@ -334,8 +334,33 @@ fn shared_james_ljson_reads_3d_points_exactly() {
     ) else {
         return;
     };
-    let raw: serde_json::Value = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
-    let naive = raw["groups"]["LJSON"]["landmarks"]["points"].as_array().unwrap();
+    // Independent parse: the numbers of the "points" array, from the text, with
+    // Rust's correctly rounded str::parse.
+    let text = std::fs::read_to_string(&p).unwrap();
+    let start = text.find("\"points\"").unwrap();
+    let open = start + text[start..].find('[').unwrap();
+    let mut depth = 0;
+    let mut close = open;
+    for (i, c) in text[open..].char_indices() {
+        match c {
+            '[' => depth += 1,
+            ']' => {
+                depth -= 1;
+                if depth == 0 {
+                    close = open + i;
+                    break;
+                }
+            }
+            _ => {}
+        }
+    }
+    let flat: Vec<f64> = text[open..close]
+        .split(|c: char| c == '[' || c == ']' || c == ',' || c.is_whitespace())
+        .filter(|t| !t.is_empty())
+        .map(|t| t.parse().unwrap())
+        .collect();
+    assert_eq!(flat.len(), 68 * 3);
+    let naive: Vec<Vec<f64>> = flat.chunks(3).map(|c| c.to_vec()).collect();
     let lj = read_ljson(&p).unwrap();
     assert_eq!(lj.version, 3);
     let g = lj.group("LJSON").unwrap();
@@ -344,12 +369,7 @@ fn shared_james_ljson_reads_3d_points_exactly() {
     };
     assert_eq!(pts.len(), 68);
     for (i, q) in pts.iter().enumerate() {
-        let n: Vec<f64> = naive[i]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_f64().unwrap())
-            .collect();
+        let n = &naive[i];
         assert_eq!(
             [q.x, q.y, q.z],
             [n[0], n[1], n[2]],
@@ -452,4 +472,59 @@ fn missing_files_are_io_errors() {
     assert!(matches!(read_pts(p), Err(Error::Io { .. })));
     assert!(matches!(read_dlib_xml(p), Err(Error::Io { .. })));
     assert!(matches!(read_ljson(p), Err(Error::Io { .. })));
+}
+
+#[test]
+fn ljson_writer_round_trips() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let lm = Landmarks68::from_fn(|_| (rng.random_range(0.0..640.0), rng.random_range(0.0..480.0)));
+    let mut lj = Ljson::from_landmarks68("face", &lm);
+    lj.groups[0].connectivity = vec![[0, 1], [1, 2]];
+    let mut extra = lj.groups[0].clone();
+    extra.name = "partial".into();
+    let LjsonPoints::D2(p) = &mut extra.points else {
+        panic!()
+    };
+    p[3].x = f64::NAN;
+    p[3].y = f64::NAN;
+    lj.groups.push(extra);
+    let path = dir.path().join("x.ljson");
+    write_ljson(&path, &lj).unwrap();
+    let back = read_ljson(&path).unwrap();
+    assert_eq!(back.version, 3);
+    assert_eq!(back.group("face").unwrap(), &lj.groups[0]);
+    assert_eq!(back.group("face").unwrap().landmarks68().unwrap(), lm);
+    let LjsonPoints::D2(q) = &back.group("partial").unwrap().points else {
+        panic!()
+    };
+    assert!(q[3].x.is_nan() && q[4].x == lm.points[4].x);
+    // The file stores (y, x) like menpo.
+    let raw: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    assert_eq!(
+        raw["groups"]["face"]["landmarks"]["points"][0][0].as_f64().unwrap(),
+        lm.points[0].y
+    );
+    let labels: Vec<&str> = back
+        .group("face")
+        .unwrap()
+        .labels
+        .iter()
+        .map(|(l, _)| l.as_str())
+        .collect();
+    assert_eq!(labels, vec!["jaw", "brows", "nose", "eyes", "mouth"]);
+
+    // 3D (the shared James file) round-trips exactly.
+    if let Some(j) = shared_data_file("ljson_writer_round_trips", "models3d/menpo3d_james/james.ljson") {
+        let james = read_ljson(&j).unwrap();
+        write_ljson(&path, &james).unwrap();
+        assert_eq!(read_ljson(&path).unwrap(), james);
+    }
+    // Invalid groups are refused.
+    let mut bad = Ljson::from_landmarks68("face", &lm);
+    bad.groups[0].connectivity.push([0, 68]);
+    assert!(ljson_to_string(&bad).is_err());
+    let mut bad = Ljson::from_landmarks68("face", &lm);
+    bad.groups.push(bad.groups[0].clone());
+    assert!(ljson_to_string(&bad).is_err());
 }

@@ -1,4 +1,4 @@
-//! menpo `.ljson` landmark files (read only), versions 1, 2 and 3.
+//! menpo `.ljson` landmark files: read versions 1, 2 and 3, write version 3.
 //!
 //! * v3: `{"version": 3, "groups": {"<group>": {"landmarks": {"points": [...],
 //!   "connectivity": [[a, b], ...]}, "labels": [{"label": "chin", "mask": [0, ...]}]}}}`
@@ -14,9 +14,12 @@
 
 use std::path::Path;
 
+use serde_json::json;
+
 use nalgebra::{Point2, Point3};
 use serde_json::Value;
 
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::landmarks::{Landmarks68, NUM_LANDMARKS};
 
@@ -91,7 +94,7 @@ impl LjsonGroup {
 pub struct Ljson {
     /// Format version (1, 2 or 3).
     pub version: u32,
-    /// Groups in file order.
+    /// Groups; for v3 files sorted by name (JSON objects are read as sorted maps).
     pub groups: Vec<LjsonGroup>,
 }
 
@@ -295,4 +298,86 @@ fn parse_v1(v: &Value) -> Result<LjsonGroup> {
         connectivity,
         labels,
     })
+}
+
+impl Ljson {
+    /// A version-3 file with one 2D group of 68 landmarks labelled by iBUG region
+    /// (`jaw`, `brows`, `nose`, `eyes`, `mouth`).
+    pub fn from_landmarks68(group: &str, landmarks: &Landmarks68) -> Self {
+        let labels = crate::landmarks::Region::ALL
+            .iter()
+            .map(|r| (r.name().to_owned(), r.indices().collect()))
+            .collect();
+        Ljson {
+            version: 3,
+            groups: vec![LjsonGroup {
+                name: group.to_owned(),
+                points: LjsonPoints::D2(landmarks.points.to_vec()),
+                connectivity: Vec::new(),
+                labels,
+            }],
+        }
+    }
+}
+
+fn num_or_null(v: f64) -> Value {
+    if v.is_nan() {
+        Value::Null
+    } else {
+        json!(v)
+    }
+}
+
+/// The version-3 JSON text of `ljson` (the `version` field is ignored: always 3).
+///
+/// # Errors
+/// [`Error::InvalidParameter`] for infinite coordinates, duplicate group names,
+/// masks or edges out of range.
+pub fn ljson_to_string(ljson: &Ljson) -> Result<String> {
+    let mut groups = serde_json::Map::new();
+    for g in &ljson.groups {
+        let n = g.points.len();
+        let points: Vec<Value> = match &g.points {
+            LjsonPoints::D2(p) => p.iter().map(|q| json!([num_or_null(q.y), num_or_null(q.x)])).collect(),
+            LjsonPoints::D3(p) => p
+                .iter()
+                .map(|q| json!([num_or_null(q.x), num_or_null(q.y), num_or_null(q.z)]))
+                .collect(),
+        };
+        let infinite = match &g.points {
+            LjsonPoints::D2(p) => p.iter().any(|q| q.x.is_infinite() || q.y.is_infinite()),
+            LjsonPoints::D3(p) => p
+                .iter()
+                .any(|q| q.x.is_infinite() || q.y.is_infinite() || q.z.is_infinite()),
+        };
+        if infinite {
+            return Err(Error::invalid("LJSON point", &g.name, "finite coordinates or NaN"));
+        }
+        if g.connectivity.iter().flatten().any(|&i| i >= n) || g.labels.iter().any(|(_, m)| m.iter().any(|&i| i >= n)) {
+            return Err(Error::invalid(
+                "LJSON group",
+                &g.name,
+                format!("connectivity and masks indexing its {n} points"),
+            ));
+        }
+        let labels: Vec<Value> = g.labels.iter().map(|(l, m)| json!({ "label": l, "mask": m })).collect();
+        let group = json!({
+            "landmarks": { "points": points, "connectivity": g.connectivity },
+            "labels": labels,
+        });
+        if groups.insert(g.name.clone(), group).is_some() {
+            return Err(Error::invalid("LJSON group name", &g.name, "unique group names"));
+        }
+    }
+    let root = json!({ "version": 3, "groups": groups });
+    serde_json::to_string_pretty(&root).map_err(|e| Error::invalid("LJSON document", e, "serialisable JSON"))
+}
+
+/// Writes `ljson` as a version-3 `.ljson` file (atomically).
+///
+/// # Errors
+/// As [`ljson_to_string`], or [`Error::Io`].
+pub fn write_ljson(path: impl AsRef<Path>, ljson: &Ljson) -> Result<()> {
+    let text = ljson_to_string(ljson)?;
+    write_atomic(path, |w| w.write_all(text.as_bytes()))
 }
