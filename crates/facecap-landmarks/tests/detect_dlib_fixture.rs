@@ -155,6 +155,12 @@ fn detections_match_dlib_on_shared_images_and_frames() {
                             st.exact += 1;
                         }
                         let dev = (ours[i].score - t["score"].as_f64().unwrap()).abs();
+                        if dev > 1e-4 {
+                            eprintln!(
+                                "score dev {dev:.2e} {src} frame {:?} up {} det {}",
+                                case["frame"], params.upsample, t["detector"]
+                            );
+                        }
                         st.max_score_dev = st.max_score_dev.max(dev);
                     }
                     _ => failures.push(format!(

@@ -21,8 +21,6 @@
 //! accumulators in dlib's 8-column SIMD blocks, a plain running sum in its scalar
 //! tail), so scores agree with dlib up to the last bits of the SVD.
 
-use nalgebra::DMatrix;
-
 use super::fhog::{FhogImage, PLANES};
 
 /// One rank-1 term of a separable filter bank.
@@ -61,13 +59,9 @@ impl FilterBank {
         let mut full = Vec::with_capacity(PLANES * size);
         let mut terms = Vec::new();
         for i in 0..PLANES {
-            let f = DMatrix::from_row_slice(fh, fw, &weights[i * size..(i + 1) * size]);
-            full.extend(weights[i * size..(i + 1) * size].iter().map(|&v| v as f32));
-            let svd = f.svd(true, true);
-            let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
-                continue;
-            };
-            let s = svd.singular_values;
+            let f = &weights[i * size..(i + 1) * size];
+            full.extend(f.iter().map(|&v| v as f32));
+            let (u, s, v) = jacobi_svd(f, fh, fw);
             let mut order: Vec<usize> = (0..s.len()).collect();
             order.sort_by(|&a, &b| s[b].total_cmp(&s[a]));
             let smax = s.iter().copied().fold(0.0f64, f64::max);
@@ -80,8 +74,8 @@ impl FilterBank {
                 let k = sj.sqrt();
                 terms.push(SeparableTerm {
                     plane: i,
-                    row: (0..fw).map(|n| (v_t[(j, n)] * k) as f32).collect(),
-                    col: (0..fh).map(|m| (u[(m, j)] * k) as f32).collect(),
+                    row: (0..fw).map(|n| (v[j * fw + n] * k) as f32).collect(),
+                    col: (0..fh).map(|m| (u[j * fh + m] * k) as f32).collect(),
                 });
             }
         }
@@ -95,6 +89,69 @@ impl FilterBank {
             use_full,
         }
     }
+}
+
+/// Singular value decomposition `A = sum_j s_j u_j v_j^T` of a row-major `m x n`
+/// matrix by one-sided Jacobi rotations (Hestenes 1958), accurate to a few ulps also
+/// for rank-deficient matrices (the detector's filters are rank 1-3). Returns `u`
+/// (`n` vectors of length `m`, vector-major), `s` (`n` values, unsorted) and `v` (`n`
+/// vectors of length `n`).
+pub fn jacobi_svd(a: &[f64], m: usize, n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    const MAX_SWEEPS: usize = 80;
+    let mut u = vec![0.0; n * m];
+    for i in 0..m {
+        for j in 0..n {
+            u[j * m + i] = a[i * n + j];
+        }
+    }
+    let mut v = vec![0.0; n * n];
+    for j in 0..n {
+        v[j * n + j] = 1.0;
+    }
+    for _ in 0..MAX_SWEEPS {
+        let mut rotated = false;
+        for p in 0..n {
+            for q in p + 1..n {
+                let (mut alpha, mut beta, mut gamma) = (0.0, 0.0, 0.0);
+                for i in 0..m {
+                    let (x, y) = (u[p * m + i], u[q * m + i]);
+                    alpha += x * x;
+                    beta += y * y;
+                    gamma += x * y;
+                }
+                if gamma == 0.0 || gamma.abs() <= f64::EPSILON * (alpha * beta).sqrt() {
+                    continue;
+                }
+                rotated = true;
+                let zeta = (beta - alpha) / (2.0 * gamma);
+                let t = zeta.signum() / (zeta.abs() + (1.0 + zeta * zeta).sqrt());
+                let c = 1.0 / (1.0 + t * t).sqrt();
+                let s = c * t;
+                for i in 0..m {
+                    let (x, y) = (u[p * m + i], u[q * m + i]);
+                    u[p * m + i] = c * x - s * y;
+                    u[q * m + i] = s * x + c * y;
+                }
+                for i in 0..n {
+                    let (x, y) = (v[p * n + i], v[q * n + i]);
+                    v[p * n + i] = c * x - s * y;
+                    v[q * n + i] = s * x + c * y;
+                }
+            }
+        }
+        if !rotated {
+            break;
+        }
+    }
+    let mut s = vec![0.0; n];
+    for j in 0..n {
+        let norm = u[j * m..(j + 1) * m].iter().map(|x| x * x).sum::<f64>().sqrt();
+        s[j] = norm;
+        if norm > 0.0 {
+            u[j * m..(j + 1) * m].iter_mut().for_each(|x| *x /= norm);
+        }
+    }
+    (u, s, v)
 }
 
 /// The valid output area of a filtering: rows `r0..r1`, columns `c0..c1` (exclusive).
@@ -458,6 +515,28 @@ mod tests {
             *v = rng.random_range(0.0..0.3);
         }
         (weights, feats)
+    }
+
+    #[test]
+    fn jacobi_svd_reconstructs_rank_deficient_matrices() {
+        let (weights, _) = random_case(5, 12, 12);
+        for i in 0..PLANES {
+            let a = &weights[i * 100..(i + 1) * 100];
+            let (u, s, v) = jacobi_svd(a, 10, 10);
+            for m in 0..10 {
+                for n in 0..10 {
+                    let rec: f64 = (0..10).map(|j| s[j] * u[j * 10 + m] * v[j * 10 + n]).sum();
+                    assert!((rec - a[m * 10 + n]).abs() < 1e-14, "plane {i} ({m},{n})");
+                }
+            }
+            // orthonormal right vectors
+            for p in 0..10 {
+                for q in 0..10 {
+                    let d: f64 = (0..10).map(|k| v[p * 10 + k] * v[q * 10 + k]).sum();
+                    assert!((d - if p == q { 1.0 } else { 0.0 }).abs() < 1e-12);
+                }
+            }
+        }
     }
 
     #[test]
