@@ -6,7 +6,7 @@ use std::cell::RefCell;
 use nalgebra::Point2;
 
 use super::pyramid::{Pyramid, PyramidLevel};
-use super::{LkParams, PointOutcome, TrackStatus};
+use super::{LkParams, PointOutcome, TrackStatus, MAX_WINDOW};
 
 /// Fractional bits of the bilinear weights (OpenCV `W_BITS`).
 const W_BITS: i32 = 14;
@@ -85,6 +85,32 @@ fn weights(a: f32, b: f32) -> (i32, i32, i32, i32) {
     let w01 = (a * (1.0 - b) * one).round_ties_even() as i32;
     let w10 = ((1.0 - a) * b * one).round_ties_even() as i32;
     (w00, w01, w10, (1 << W_BITS) - w00 - w01 - w10)
+}
+
+/// The weights as `f32` for [`interp_diff_row`].
+#[inline]
+fn weights_f32(w: (i32, i32, i32, i32)) -> [f32; 4] {
+    [w.0 as f32, w.1 as f32, w.2 as f32, w.3 as f32]
+}
+
+/// `diff[x] = CV_DESCALE(bilinear(J) , 9) - I[x]` for one window row, in `f32`.
+///
+/// Exact: every product `u8 · w` (w <= 2^14) and every partial sum is an integer
+/// below 255 · 2^14 < 2^24, so `f32` holds it exactly; adding 2^8 and scaling by
+/// 2^-9 are exact too, and truncation of the non-negative result is the floor of
+/// the integer shift. `f32` lets the compiler use SIMD without 32-bit integer
+/// multiplies.
+#[inline]
+fn interp_diff_row(r0: &[u8], r1: &[u8], io: &[i16], w: [f32; 4], diff: &mut [i16]) {
+    const HALF: f32 = (1 << (INTENSITY_SHIFT - 1)) as f32;
+    const SCALE: f32 = 1.0 / (1 << INTENSITY_SHIFT) as f32;
+    let n = diff.len();
+    let (r0, r1, io) = (&r0[..n + 1], &r1[..n + 1], &io[..n]);
+    for x in 0..n {
+        let s = r0[x] as f32 * w[0] + r0[x + 1] as f32 * w[1] + r1[x] as f32 * w[2] + r1[x + 1] as f32 * w[3];
+        let v = ((s + HALF) * SCALE) as i32;
+        diff[x] = (v - io[x] as i32) as i16;
+    }
 }
 
 #[inline]
@@ -260,6 +286,7 @@ fn track_level(
     let mut nx = out[0] - half;
     let mut ny = out[1] - half;
     let mut prev_delta = [0.0f32; 2];
+    let mut diff_row = [0i16; MAX_WINDOW];
     let sj = jl.stride;
     let mut iterations = 0;
     let mut converged = false;
@@ -270,7 +297,7 @@ fn track_level(
             return LevelStatus::OutOfImage;
         }
         iterations = j + 1;
-        let (w00, w01, w10, w11) = weights(nx - inx as f32, ny - iny as f32);
+        let wf = weights_f32(weights(nx - inx as f32, ny - iny as f32));
         let base = padded_index(jl, inx, iny);
         let (mut ib1, mut ib2) = (0i64, 0i64);
         for y in 0..win {
@@ -280,15 +307,12 @@ fn track_level(
             let io = &ibuf[y * win..(y + 1) * win];
             let dxo = &dxbuf[y * win..(y + 1) * win];
             let dyo = &dybuf[y * win..(y + 1) * win];
+            let diff = &mut diff_row[..win];
+            interp_diff_row(r0, r1, io, wf, diff);
             let (mut s1, mut s2) = (0i32, 0i32);
             for x in 0..win {
-                let v = descale(
-                    r0[x] as i32 * w00 + r0[x + 1] as i32 * w01 + r1[x] as i32 * w10 + r1[x + 1] as i32 * w11,
-                    INTENSITY_SHIFT,
-                );
-                let d = v - io[x] as i32;
-                s1 += d * dxo[x] as i32;
-                s2 += d * dyo[x] as i32;
+                s1 += diff[x] as i32 * dxo[x] as i32;
+                s2 += diff[x] as i32 * dyo[x] as i32;
             }
             ib1 += s1 as i64;
             ib2 += s2 as i64;
@@ -327,21 +351,20 @@ fn window_error(cfg: &Config, jl: &PyramidLevel, out: [f32; 2], scratch: &[i16])
     if !inside(inx, iny, win as i32, jl) {
         return None;
     }
-    let (w00, w01, w10, w11) = weights(nx - inx as f32, ny - iny as f32);
+    let wf = weights_f32(weights(nx - inx as f32, ny - iny as f32));
     let base = padded_index(jl, inx, iny);
     let s = jl.stride;
     let mut acc = 0.0f32;
+    let mut diff_row = [0i16; MAX_WINDOW];
     for y in 0..win {
         let b = base + y * s;
         let r0 = &jl.img[b..b + win + 1];
         let r1 = &jl.img[b + s..b + s + win + 1];
         let io = &scratch[y * win..(y + 1) * win];
-        for x in 0..win {
-            let v = descale(
-                r0[x] as i32 * w00 + r0[x + 1] as i32 * w01 + r1[x] as i32 * w10 + r1[x + 1] as i32 * w11,
-                INTENSITY_SHIFT,
-            );
-            acc += ((v - io[x] as i32) as f32).abs();
+        let diff = &mut diff_row[..win];
+        interp_diff_row(r0, r1, io, wf, diff);
+        for d in diff.iter() {
+            acc += (*d as f32).abs();
         }
     }
     Some(acc / (32 * win * win) as f32)
