@@ -56,6 +56,9 @@ pub struct Args {
     /// Tensor model file (from `facecap tensor build`).
     #[arg(long)]
     pub tensor: Option<PathBuf>,
+    /// Landmark map of the `--tensor` model's mesh (68 iBUG landmarks -> vertex ids).
+    #[arg(long)]
+    pub tensor_landmark_map: Option<PathBuf>,
     /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
     #[arg(long)]
     pub camera: Option<String>,
@@ -162,7 +165,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         .as_deref()
         .map(|m| crate::capture_extras::MuscleSetup::new(m, &rig_mesh, &map))
         .transpose()?;
-    let tensor = args.tensor.as_deref().map(crate::capture_extras::TensorSetup::new).transpose()?;
+    let tensor = args.tensor.as_deref().map(|p| crate::capture_extras::TensorSetup::new(p, args.tensor_landmark_map.as_deref())).transpose()?;
     let args_echo = json!({
         "rig": rig_name,
         "solver": method.name(),
