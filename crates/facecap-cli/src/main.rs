@@ -13,6 +13,13 @@ mod cmd_muscle;
 mod cmd_solve;
 mod cmd_synth;
 mod cmd_tensor;
+mod default_rig;
+mod report;
+mod warp;
+mod capture_extras;
+mod livelink;
+mod progress;
+mod truth;
 
 /// Markerless facial performance capture from monocular video.
 #[derive(Debug, Parser)]
