@@ -167,7 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             })?;
         }
         let ts = rec.timestamp as f32;
-        if anim.times_s.last().is_none_or(|&last| ts > last) {
+        if anim.times_s.last().map_or(true, |&last| ts > last) {
             anim.times_s.push(ts);
             anim.weights.push(sol.weights.iter().map(|&v| v as f32).collect());
         }

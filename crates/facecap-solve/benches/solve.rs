@@ -77,6 +77,7 @@ fn bench_one<S: ExpressionSolver>(
     id: BenchmarkId,
     s: &S,
     frames: &[Landmarks68],
+    cold: bool,
 ) {
     let n = s.num_shapes();
     let mut ws = s.workspace();
@@ -85,7 +86,9 @@ fn bench_one<S: ExpressionSolver>(
     let mut i = 0;
     c.bench_function(id, |b| {
         b.iter(|| {
-            st.reset();
+            if cold {
+                st.reset();
+            }
             i = (i + 1) % frames.len();
             s.solve_into(&frames[i], &mut ws, &mut st, &mut out).unwrap()
         })
@@ -109,9 +112,9 @@ fn solvers(c: &mut Criterion) {
         },
     )
     .unwrap();
-    bench_one(&mut g, BenchmarkId::new("exact", 16), &exact16, &frames16);
+    bench_one(&mut g, BenchmarkId::new("exact", 16), &exact16, &frames16, true);
     let bob16 = facecap_solve::BobyqaSolver::new(&basis16, facecap_solve::BobyqaParams::default()).unwrap();
-    bench_one(&mut g, BenchmarkId::new("bobyqa", 16), &bob16, &frames16);
+    bench_one(&mut g, BenchmarkId::new("bobyqa", 16), &bob16, &frames16, true);
 
     // 53 shapes (ICT), and the ICT 16-shape subset for the 3D solver
     let rig = ict_rig();
@@ -137,7 +140,20 @@ fn solvers(c: &mut Criterion) {
         Method::Exact3d,
     ] {
         let s = AnySolver::new(m, &rig, cam, obj).unwrap();
-        bench_one(&mut g, BenchmarkId::new(m.name(), n), &s, &lms);
+        bench_one(&mut g, BenchmarkId::new(m.name(), n), &s, &lms, true);
+    }
+    // warm-started tracking: a smooth 60-frame trajectory, state carried between frames
+    let traj = facecap_solve::synth::trajectory(&rig, &cam, 640.0, 0.5, 60, 5);
+    let tl: Vec<Landmarks68> = traj.iter().map(|f| f.landmarks.clone()).collect();
+    for m in [Method::Exact, Method::Exact3d] {
+        let s = AnySolver::new(m, &rig, cam, obj).unwrap();
+        bench_one(
+            &mut g,
+            BenchmarkId::new(format!("{}_warm", m.name()), n),
+            &s,
+            &tl,
+            false,
+        );
     }
     if n > 16 {
         let sub = rig
@@ -156,7 +172,19 @@ fn solvers(c: &mut Criterion) {
         );
         let lms: Vec<Landmarks68> = frames.iter().map(|f| f.landmarks.clone()).collect();
         let s = AnySolver::new(Method::Exact3d, &sub, cam, obj).unwrap();
-        bench_one(&mut g, BenchmarkId::new("exact3d", 16), &s, &lms);
+        bench_one(&mut g, BenchmarkId::new("exact3d", 16), &s, &lms, true);
+        let traj = facecap_solve::synth::trajectory(&sub, &cam, 640.0, 0.5, 60, 5);
+        let tl: Vec<Landmarks68> = traj.iter().map(|f| f.landmarks.clone()).collect();
+        for m in [Method::Exact, Method::Exact3d] {
+            let s = AnySolver::new(m, &sub, cam, obj).unwrap();
+            bench_one(
+                &mut g,
+                BenchmarkId::new(format!("{}_warm", m.name()), 16),
+                &s,
+                &tl,
+                false,
+            );
+        }
     }
     g.finish();
 }

@@ -51,7 +51,7 @@ fn solve_seq(s: &AnySolver, frames: &[Landmarks68]) -> (Vec<Solution>, Vec<f64>,
     (sols, times, costs)
 }
 
-fn synthetic(rig: &BlendshapeRig, rig_name: &str, count: usize) {
+fn synthetic(rig: &BlendshapeRig, rig_name: &str, count: usize, pose: SynthParams) {
     let cam = Intrinsics::default_for_frame(640, 480).unwrap();
     println!(
         "### Synthetic ground truth: {rig_name}, {} shapes, {count} frames per noise level\n",
@@ -68,7 +68,7 @@ fn synthetic(rig: &BlendshapeRig, rig_name: &str, count: usize) {
             640.0,
             &SynthParams {
                 noise_px: noise,
-                ..Default::default()
+                ..pose
             },
             count,
             42,
@@ -144,8 +144,8 @@ fn jitter(sols: &[Solution]) -> f64 {
     s / (sols.len() - 1).max(1) as f64
 }
 
-fn real(rig: &BlendshapeRig) {
-    println!("### Real video (dlib 68-point landmark fixtures, every 2nd frame of the first 120)\n");
+fn real(rig: &BlendshapeRig, rig_name: &str, methods: &[Method]) {
+    println!("### Real video: {rig_name}, dlib 68-point landmark fixtures (every 2nd frame of the first 120)\n");
     println!("| clip | method | mean reprojection error (px) | time/frame median (us) | jitter on still stretch, mu = 0 | jitter, mu = 200 px^2 |");
     println!("|---|---|---|---|---|---|");
     let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../testdata/solve");
@@ -154,6 +154,9 @@ fn real(rig: &BlendshapeRig) {
         let frames: Vec<Landmarks68> = recs.iter().filter_map(|r| r.landmarks.clone()).collect();
         let cam = Intrinsics::default_for_frame(w, h).unwrap();
         let still = still_stretch(&frames, 10);
+        if methods.len() > 2 {
+            println!("<!-- {clip}: still stretch = rows {still}..{} -->", still + 10);
+        }
         for m in [
             Method::Bobyqa,
             Method::Region,
@@ -192,32 +195,106 @@ fn real(rig: &BlendshapeRig) {
     println!();
 }
 
+/// The seed's own setting: observations made by the 2D model itself (frontal orthographic view
+/// of the rig under a random similarity) plus noise.
+fn consistent_2d(rig: &BlendshapeRig, rig_name: &str, count: usize) {
+    use rand::{Rng, SeedableRng};
+    println!(
+        "### 2D-consistent data: {rig_name}, orthographic frontal view under a random similarity, {count} frames\n"
+    );
+    println!("| noise (px) | method | weight RMSE | reprojection error (px) |");
+    println!("|---|---|---|---|");
+    let cam = Intrinsics::default_for_frame(640, 480).unwrap();
+    let n = rig.num_shapes();
+    for noise in [0.0, 0.5, 2.0] {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let mut frames = Vec::new();
+        for _ in 0..count {
+            let mut w = vec![0.0; n];
+            for _ in 0..rng.random_range(2..=5) {
+                w[rng.random_range(0..n)] = rng.random_range(0.2..1.0);
+            }
+            let (a, sc) = (rng.random_range(-0.3..0.3f64), rng.random_range(12.0..18.0));
+            let (tx, ty) = (rng.random_range(250.0..390.0), rng.random_range(190.0..290.0));
+            let mut nz =
+                || noise * (rng.random_range(-1.0..1.0f64) + rng.random_range(-1.0..1.0) + rng.random_range(-1.0..1.0));
+            let lm = Landmarks68::from_fn(|l| {
+                let p = rig.landmark(l, &w);
+                let (x, y) = (p.x, -p.y);
+                (
+                    tx + sc * (a.cos() * x - a.sin() * y) + nz(),
+                    ty + sc * (a.sin() * x + a.cos() * y) + nz(),
+                )
+            });
+            frames.push((w, lm));
+        }
+        for m in [Method::Bobyqa, Method::Region, Method::Pca, Method::Exact] {
+            let s = AnySolver::new(m, rig, cam, ObjectiveParams::default()).unwrap();
+            let (mut e, mut r) = (0.0, 0.0);
+            for (w, lm) in &frames {
+                let (sols, _, _) = solve_seq(&s, std::slice::from_ref(lm));
+                e += rmse(&sols[0].weights, w);
+                r += sols[0].reprojection_error(lm);
+            }
+            let k = frames.len() as f64;
+            println!("| {noise} | {} | {:.4} | {:.2} |", m.name(), e / k, r / k);
+        }
+    }
+    println!("\n(noise: sum of three U(-1, 1) draws times the level, std = level.)\n");
+}
+
 fn main() {
     let count: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(30);
     let (rig, name) = load_rig();
-    synthetic(&rig, &name, count);
-    if rig.num_shapes() > 16 {
-        let names: Vec<&str> = [
-            "browDown_L",
-            "browInnerUp_L",
-            "browOuterUp_L",
-            "eyeBlink_L",
-            "eyeBlink_R",
-            "eyeWide_L",
-            "jawOpen",
-            "jawLeft",
-            "mouthSmile_L",
-            "mouthSmile_R",
-            "mouthFunnel",
-            "mouthPucker",
-            "mouthStretch_L",
-            "mouthUpperUp_L",
-            "mouthLowerDown_R",
-            "mouthFrown_L",
-        ]
-        .to_vec();
-        let sub = rig.select(&names).unwrap();
-        synthetic(&sub, &format!("{name}, 16-shape subset"), count);
+    if std::env::args().nth(2).as_deref() == Some("2d") {
+        let sub = if rig.num_shapes() > 16 {
+            rig.select(&SUBSET16).unwrap()
+        } else {
+            rig.clone()
+        };
+        consistent_2d(&sub, &format!("{name}, 16-shape subset"), count);
+        return;
     }
-    real(&rig);
+    let sub = if rig.num_shapes() > 16 {
+        let names: Vec<&str> = SUBSET16.to_vec();
+        rig.select(&names).unwrap()
+    } else {
+        rig.clone()
+    };
+    let sub_name = format!("{name}, 16-shape subset");
+    let wide = SynthParams::default();
+    let frontal = SynthParams {
+        max_yaw_deg: 3.0,
+        max_pitch_deg: 3.0,
+        max_roll_deg: 3.0,
+        ..Default::default()
+    };
+    synthetic(&sub, &sub_name, count, wide);
+    synthetic(&sub, &sub_name, count, frontal);
+    if rig.num_shapes() > 16 {
+        synthetic(&rig, &name, (count / 3).max(3), wide);
+    }
+    real(&sub, &sub_name, &Method::ALL);
+    if rig.num_shapes() > 16 {
+        real(&rig, &name, &[Method::Exact, Method::Exact3d]);
+    }
 }
+
+const SUBSET16: [&str; 16] = [
+    "browDown_L",
+    "browInnerUp_L",
+    "browOuterUp_L",
+    "eyeBlink_L",
+    "eyeBlink_R",
+    "eyeWide_L",
+    "jawOpen",
+    "jawLeft",
+    "mouthSmile_L",
+    "mouthSmile_R",
+    "mouthFunnel",
+    "mouthPucker",
+    "mouthStretch_L",
+    "mouthUpperUp_L",
+    "mouthLowerDown_R",
+    "mouthFrown_L",
+];

@@ -267,7 +267,7 @@ pub fn bobyqa_two_pass(
         });
     }
     for i in 0..n {
-        if !(hi[i] - lo[i] >= 2.0 * params.rho_begin) {
+        if hi[i] - lo[i] < 2.0 * params.rho_begin || (hi[i] - lo[i]).is_nan() {
             return Err(Error::invalid(
                 "bounds",
                 format!("[{}, {}] for variable {i}", lo[i], hi[i]),

@@ -64,7 +64,7 @@ impl ExactParams {
         self.objective.validate()?;
         check_count("alignments", self.alignments, 1, 10)?;
         check_count("max_iterations", self.max_iterations, 1, 10000)?;
-        if !(self.kkt_tol > 0.0) {
+        if self.kkt_tol <= 0.0 {
             return Err(crate::Error::invalid(
                 "kkt_tol",
                 self.kkt_tol,

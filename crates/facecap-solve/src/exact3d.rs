@@ -303,13 +303,13 @@ impl Exact3dSolver {
         let a1 = Vector3::new(pu[0], pu[1], pu[2]) / k.fx;
         let a2 = Vector3::new(pv[0], pv[1], pv[2]) / k.fy;
         let (n1, n2) = (a1.norm(), a2.norm());
-        if !(n1 > 0.0 && n2 > 0.0) || !n1.is_finite() || !n2.is_finite() {
+        if !(n1 > 0.0 && n2 > 0.0 && n1.is_finite() && n2.is_finite()) {
             return Err(degenerate());
         }
         let r1 = a1 / n1;
         let r2 = a2 - r1 * r1.dot(&a2);
         let r2n = r2.norm();
-        if !(r2n > 0.0) {
+        if r2n <= 0.0 || r2n.is_nan() {
             return Err(degenerate());
         }
         let r2 = r2 / r2n;

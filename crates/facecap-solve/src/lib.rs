@@ -109,6 +109,7 @@ impl std::str::FromStr for Method {
 /// Any of the five solvers with default parameters (plus `objective`), for callers that pick the
 /// method at run time (the CLI).
 #[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)]
 pub enum AnySolver {
     /// See [`ExactSolver`].
     Exact(ExactSolver),

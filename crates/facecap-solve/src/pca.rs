@@ -95,7 +95,7 @@ impl PcaSolver {
         let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
         order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
         let total: f64 = svd.singular_values.iter().map(|s| s * s).sum();
-        if !(total > 0.0) {
+        if total <= 0.0 || total.is_nan() {
             return Err(Error::rig(
                 "PCA basis",
                 "all expression deltas are zero at the mapped landmarks",

@@ -402,7 +402,7 @@ pub fn reference_box_qp(h: &[f64], g: &[f64], lo: &[f64], hi: &[f64]) -> Option<
             continue;
         }
         let c = qp_cost(h, g, &x);
-        if best.as_ref().is_none_or(|(bc, _)| c < *bc) {
+        if best.as_ref().map_or(true, |(bc, _)| c < *bc) {
             best = Some((c, x));
         }
     }

@@ -435,7 +435,7 @@ pub fn read_obj(path: &Path, max_vertices: Option<usize>) -> Result<Mesh> {
                     }
                 }
                 all_v += 1;
-                if max_vertices.is_none_or(|m| positions.len() < m) {
+                if max_vertices.map_or(true, |m| positions.len() < m) {
                     positions.push(Point3::new(c[0], c[1], c[2]));
                 }
             }

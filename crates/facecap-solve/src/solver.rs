@@ -271,8 +271,8 @@ impl Model2d {
             }
         }
         let mut stable = basis.stable;
-        for l in 0..NUM_LANDMARKS {
-            stable[l] &= basis.mapped[l];
+        for (s, m) in stable.iter_mut().zip(basis.mapped.iter()) {
+            *s &= *m;
         }
         Ok(Model2d {
             names: basis.names.clone(),

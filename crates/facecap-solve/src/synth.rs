@@ -154,3 +154,69 @@ pub fn rmse(a: &[f64], b: &[f64]) -> f64 {
     let s: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
     (s / a.len().max(1) as f64).sqrt()
 }
+
+/// A smooth sequence of `count` frames (30 fps tracking-like): 4 shapes following
+/// `max(0, sin(0.15 t + phase))`, head yaw `20 sin(0.05 t)` deg and pitch `8 sin(0.07 t)` deg,
+/// plus `noise_px` landmark noise. For warm-start benches and jitter measurements.
+pub fn trajectory(
+    rig: &BlendshapeRig,
+    camera: &Intrinsics,
+    width: f64,
+    noise_px: f64,
+    count: usize,
+    seed: u64,
+) -> Vec<SynthFrame> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let n = rig.num_shapes();
+    let active: Vec<(usize, f64)> = (0..4.min(n))
+        .map(|_| (rng.random_range(0..n), rng.random_range(0.0..std::f64::consts::TAU)))
+        .collect();
+    let fw = face_width(rig);
+    let depth = camera.fx * fw / (0.35 * width);
+    let mut centre = Vector3::zeros();
+    let mut cnt = 0.0;
+    for l in 0..NUM_LANDMARKS {
+        if rig.mapped[l] {
+            centre += Vector3::new(rig.neutral[[l, 0]], rig.neutral[[l, 1]], rig.neutral[[l, 2]]);
+            cnt += 1.0;
+        }
+    }
+    centre /= cnt;
+    let flip = Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+    (0..count)
+        .map(|t| {
+            let tf = t as f64;
+            let mut w = vec![0.0; n];
+            for &(k, ph) in &active {
+                w[k] = (0.15 * tf + ph).sin().max(0.0);
+            }
+            let head = Rotation3::from_euler_angles(
+                (8.0 * (0.07 * tf).sin()).to_radians(),
+                (20.0 * (0.05 * tf).sin()).to_radians(),
+                0.0,
+            );
+            let r = flip * head;
+            let t_vec = Vector3::new(0.0, 0.0, depth) - r * centre;
+            let pose = ModelToCamera::from_rvec_tvec(r.scaled_axis(), t_vec);
+            let mut clean = Landmarks68::default();
+            let mut noisy = Landmarks68::default();
+            for l in 0..NUM_LANDMARKS {
+                let q = if rig.mapped[l] {
+                    pose.project(camera, &rig.landmark(l, &w))
+                        .unwrap_or(nalgebra::Point2::new(camera.cx, camera.cy))
+                } else {
+                    nalgebra::Point2::new(camera.cx, camera.cy)
+                };
+                clean.points[l] = q;
+                noisy.points[l] =
+                    nalgebra::Point2::new(q.x + noise_px * normal(&mut rng), q.y + noise_px * normal(&mut rng));
+            }
+            SynthFrame {
+                weights: w,
+                pose,
+                landmarks: noisy,
+                clean,
+            }
+        })
+        .collect()
+}

@@ -127,8 +127,8 @@ fn against_dlib_find_min_bobyqa() {
             let mut s = 0.0;
             for j in 0..m {
                 let mut r = fx.neutral[j] - p.obs[j];
-                for kk in 0..k {
-                    r += w[kk] * fx.deltas[kk][j];
+                for (wk, d) in w.iter().zip(&fx.deltas) {
+                    r += wk * d[j];
                 }
                 s += r * r;
             }
