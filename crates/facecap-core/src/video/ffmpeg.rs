@@ -3,7 +3,7 @@
 //! Command (see `docs/video.md` for the measurements behind each choice):
 //!
 //! ```text
-//! ffmpeg -nostdin -hide_banner -nostats -loglevel info [-xerror] [-threads N]
+//! ffmpeg -nostdin -hide_banner -nostats -loglevel level+info [-xerror] [-threads N]
 //!        -copyts -i FILE -map 0:V:0 -vf showinfo=checksum=0 -fps_mode passthrough
 //!        -f rawvideo -pix_fmt yuv420p|yuv444p pipe:1          (stdin = /dev/null)
 //! ```
@@ -18,9 +18,13 @@
 //!   what `ffprobe -show_entries frame=pts_time` reports) and a size change is detected.
 //! * `-fps_mode passthrough`: no frame is duplicated or dropped to fit a constant rate.
 //! * `-map 0:V:0`: the first video stream that is not an attached picture (cover art).
-//! * `-xerror` (with [`SourceOptions::strict`], the default): ffmpeg stops at the first
-//!   decode error instead of concealing it, so a damaged or truncated file yields the
-//!   intact frames before the damage and then an [`Error::Decode`] naming the frame.
+//! * Strict mode ([`SourceOptions::strict`], the default): `-xerror` makes ffmpeg 5 stop at
+//!   the first decode error, and since ffmpeg 7 merely drops a damaged frame even then,
+//!   the source also watches the log (`-loglevel level+info` tags each line with its
+//!   level) and stops at the first `error`-level line: a damaged or truncated file yields
+//!   the intact frames reported before the damage, then an [`Error::Decode`] naming the
+//!   frame. Never a concealed (garbage) frame, never a silent gap. Lenient mode lets ffmpeg
+//!   drop damaged frames and go on (measured: the frames it delivers are still intact).
 //!
 //! The child is killed and reaped when the source is dropped.
 
@@ -150,9 +154,38 @@ pub struct ShowinfoFrame {
 #[derive(Debug)]
 enum Msg {
     Frame(ShowinfoFrame),
-    TimeBase { tb: (i64, i64), rate: Option<(i64, i64)> },
+    TimeBase {
+        tb: (i64, i64),
+        rate: Option<(i64, i64)>,
+    },
     Line(String),
+    /// A line logged at level error, fatal or panic.
+    Error(String),
     Eof,
+}
+
+/// Log levels ffmpeg prints with `-loglevel level+info`, and whether they are errors.
+const LEVEL_TAGS: [(&str, bool); 8] = [
+    ("[info] ", false),
+    ("[warning] ", false),
+    ("[error] ", true),
+    ("[fatal] ", true),
+    ("[panic] ", true),
+    ("[verbose] ", false),
+    ("[debug] ", false),
+    ("[trace] ", false),
+];
+
+/// Removes the level tag of a `level+` log line; says whether it was an error level.
+fn strip_level(line: &str) -> (String, bool) {
+    let found = LEVEL_TAGS
+        .iter()
+        .filter_map(|(tag, err)| line.find(tag).map(|i| (i, tag.len(), *err)))
+        .min_by_key(|(i, _, _)| *i);
+    match found {
+        Some((i, n, err)) => (format!("{}{}", &line[..i], &line[i + n..]), err),
+        None => (line.to_string(), false),
+    }
 }
 
 fn field_after<'a>(line: &'a str, key: &str) -> Option<&'a str> {
@@ -191,8 +224,11 @@ pub fn parse_showinfo_frame(line: &str) -> Option<ShowinfoFrame> {
     })
 }
 
-/// Classifies one stderr line.
-fn classify(line: String) -> Msg {
+/// Classifies one stderr line (level tag already removed).
+fn classify(line: String, is_error: bool) -> Msg {
+    if is_error {
+        return Msg::Error(line);
+    }
     if let Some(i) = line.find("Parsed_showinfo_") {
         let body = line[i..].split_once("] ").map_or("", |(_, b)| b);
         if let Some(f) = parse_showinfo_frame(body) {
@@ -312,6 +348,9 @@ pub struct FfmpegSource {
     conv: YuvToRgb,
     rgb: bool,
     tail: VecDeque<String>,
+    strict: bool,
+    /// First error-level line ffmpeg logged (strict mode stops at the next frame).
+    error_line: Option<String>,
     done: bool,
 }
 
@@ -327,7 +366,7 @@ impl FfmpegSource {
         let ffmpeg = locate_ffmpeg(opts.ffmpeg.as_deref())?;
         let pix_fmt = if opts.rgb { "yuv444p" } else { "yuv420p" };
         let mut cmd = Command::new(&ffmpeg);
-        cmd.args(["-nostdin", "-hide_banner", "-nostats", "-loglevel", "info"]);
+        cmd.args(["-nostdin", "-hide_banner", "-nostats", "-loglevel", "level+info"]);
         if opts.strict {
             cmd.arg("-xerror");
         }
@@ -371,8 +410,8 @@ impl FfmpegSource {
                     match std::io::BufRead::read_until(&mut r, b'\n', &mut buf) {
                         Ok(0) | Err(_) => break,
                         Ok(_) => {
-                            let line = String::from_utf8_lossy(&buf).trim_end().to_string();
-                            if tx.send(classify(line)).is_err() {
+                            let (line, is_error) = strip_level(String::from_utf8_lossy(&buf).trim_end());
+                            if tx.send(classify(line, is_error)).is_err() {
                                 break;
                             }
                         }
@@ -416,6 +455,8 @@ impl FfmpegSource {
             conv: YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Limited),
             rgb: opts.rgb,
             tail: VecDeque::with_capacity(LOG_TAIL_LINES + 1),
+            strict: opts.strict,
+            error_line: None,
             done: false,
         };
         // Header lines come before the first frame line.
@@ -438,6 +479,7 @@ impl FfmpegSource {
                     }
                     src.push_tail(l);
                 }
+                Msg::Error(l) => src.note_error(l),
                 Msg::Eof => break None,
             }
         };
@@ -478,6 +520,27 @@ impl FfmpegSource {
     /// Process id of the ffmpeg child (for diagnostics and tests).
     pub fn child_id(&self) -> u32 {
         self.child.id()
+    }
+
+    fn note_error(&mut self, line: String) {
+        if self.error_line.is_none() {
+            self.error_line = Some(line.clone());
+        }
+        self.push_tail(line);
+    }
+
+    /// In strict mode, the error for frame `k` once ffmpeg has logged an error.
+    fn strict_stop(&mut self, k: u64) -> Option<Error> {
+        let line = self.error_line.as_ref().filter(|_| self.strict)?;
+        let reason = format!(
+            "ffmpeg reported a decode error, so frames from here on may be damaged (first error: {});              stopped after {k} good frames (use lenient decoding to go on); {}",
+            line.trim(),
+            self.tail_text()
+        );
+        self.done = true;
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        Some(self.decode_err(Some(k), reason))
     }
 
     fn push_tail(&mut self, line: String) {
@@ -596,16 +659,21 @@ impl FfmpegSource {
                 Msg::Frame(f) => return Ok(Some(f)),
                 Msg::TimeBase { tb, .. } => self.time_base = Some(tb),
                 Msg::Line(l) => self.push_tail(l),
+                Msg::Error(l) => self.note_error(l),
                 Msg::Eof => return Ok(None),
             }
         }
     }
 
     fn read_frame(&mut self, frame: &mut Frame) -> Result<bool> {
-        let Some(rep) = self.next_report()? else {
+        let next = self.next_report()?;
+        let k = self.next_index;
+        if let Some(e) = self.strict_stop(k) {
+            return Err(e);
+        }
+        let Some(rep) = next else {
             return self.finish();
         };
-        let k = self.next_index;
         if rep.n != k {
             return Err(self.decode_err(
                 Some(k),
@@ -634,7 +702,7 @@ impl FfmpegSource {
             // Let the reader drain so the message includes ffmpeg's last words.
             while let Ok(m) = self.rx.recv_timeout(Duration::from_secs(2)) {
                 match m {
-                    Msg::Line(l) => self.push_tail(l),
+                    Msg::Line(l) | Msg::Error(l) => self.push_tail(l),
                     Msg::Eof => break,
                     _ => {}
                 }
@@ -721,7 +789,14 @@ mod tests {
         let f = parse_showinfo_frame("n:   2 pts:NOPTS pts_time:NOPTS pos: -1 fmt:gray sar:1/1 s:4x2 i:P").unwrap();
         assert_eq!(f.pts, None);
         assert!(parse_showinfo_frame("color_range:tv color_space:bt709").is_none());
-        match classify("[Parsed_showinfo_0 @ 0x55] config in time_base: 1/15360, frame_rate: 30/1".into()) {
+        let (l, e) = strip_level("[Parsed_showinfo_0 @ 0x55] [info] config in time_base: 1/15360, frame_rate: 30/1");
+        assert!(!e);
+        assert_eq!(
+            strip_level("[h264 @ 0x4] [error] Invalid NAL unit size"),
+            ("[h264 @ 0x4] Invalid NAL unit size".into(), true)
+        );
+        assert_eq!(strip_level("[info]   Duration: N/A").0, "  Duration: N/A");
+        match classify(l, e) {
             Msg::TimeBase { tb, rate } => assert_eq!((tb, rate), ((1, 15360), Some((30, 1)))),
             m => panic!("{m:?}"),
         }
