@@ -124,6 +124,8 @@ fn detections_match_dlib_on_shared_images_and_frames() {
             let params = DetectorParams {
                 upsample: run["upsample"].as_u64().unwrap() as u32,
                 adjust_threshold: run["adjust_threshold"].as_f64().unwrap(),
+                // identical to Par::Seq (see parallel_levels_give_identical_results), faster
+                par: Par::Rayon,
                 ..Default::default()
             };
             let d = det.clone().with_params(params).unwrap();
