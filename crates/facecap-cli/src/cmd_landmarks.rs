@@ -1,18 +1,287 @@
-//! `facecap landmarks`.
+//! `facecap landmarks IMAGE... [--model FILE] [--out DIR] [--draw]`.
+//!
+//! For every input image: detect faces (dlib-compatible HOG detector, largest
+//! first), predict landmarks with a dlib `shape_predictor` model (68 points by
+//! default), and write
+//!
+//! * `<out>/<stem>_<face>.pts` per face (`face` = 0-based index, largest face
+//!   first; iBUG `.pts`, 1-based coordinates),
+//! * `<out>/summary.csv` with one row per face:
+//!   `image,face,left,top,right,bottom,score,num_points,pts_file`
+//!   (dlib inclusive box in 0-based pixels; `score` is the detector's, empty for
+//!   `--box`; images without a face get one row with `face` = -1 and empty fields),
+//! * with `--draw`, `<out>/<stem>_landmarks.png`: the image with the boxes (green)
+//!   and points (red).
+//!
+//! A single video input (mp4, avi, mov, mkv, webm, y4m) is handed to the video
+//! mode ([`crate::cmd_landmarks_video`]).
 
-use std::path::PathBuf;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context};
+use facecap_core::landmarks::Rect;
+use facecap_landmarks::ert::ShapePredictor;
+use image::{GrayImage, Rgb, RgbImage};
+use nalgebra::Point2;
+
+/// File extensions treated as video.
+pub const VIDEO_EXTENSIONS: [&str; 6] = ["mp4", "avi", "mov", "mkv", "webm", "y4m"];
+
+/// How colour images are turned into the grey image the models see.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum GreyMode {
+    /// BT.601 luma (OpenCV's `COLOR_RGB2GRAY` weights), facecap's default.
+    Bt601,
+    /// `(r + g + b) / 3` (integer), what dlib uses when given an RGB image.
+    Mean,
+}
 
 /// Arguments of `facecap landmarks`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Input files.
+    /// Input images (or one video file).
+    #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
+    /// dlib shape_predictor model (default: shape_predictor_68_face_landmarks.dat in
+    /// the model cache).
+    #[arg(long, value_name = "FILE")]
+    pub model: Option<PathBuf>,
+    /// Output folder (created if missing).
+    #[arg(long, value_name = "DIR", default_value = ".")]
+    pub out: PathBuf,
+    /// Also write `<stem>_landmarks.png` with the boxes and points drawn.
+    #[arg(long)]
+    pub draw: bool,
+    /// Use this face box (dlib inclusive `left,top,right,bottom`, 0-based pixels)
+    /// for every image instead of running the face detector.
+    #[arg(long = "box", value_name = "L,T,R,B", value_parser = parse_box)]
+    pub face_box: Option<Rect>,
+    /// Grey conversion of colour images.
+    #[arg(long, value_enum, default_value_t = GreyMode::Bt601)]
+    pub grey: GreyMode,
+}
+
+/// What the video mode receives from `facecap landmarks VIDEO ...`.
+#[derive(Debug, Clone)]
+pub struct VideoJob {
+    /// The video file.
+    pub input: PathBuf,
+    /// Output folder.
+    pub out_dir: PathBuf,
+    /// `--draw` was given.
+    pub draw: bool,
+    /// `--model`, when given (else the cache's 68-point model).
+    pub model: Option<PathBuf>,
+}
+
+fn parse_box(s: &str) -> Result<Rect, String> {
+    let v: Vec<i64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<i64>().map_err(|e| format!("bad box value {x:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    let [l, t, r, b] = v[..] else {
+        return Err(format!("expected 4 comma-separated integers L,T,R,B, got {}", v.len()));
+    };
+    if r < l || b < t {
+        return Err(format!("box {s}: need right >= left and bottom >= top"));
+    }
+    Ok(Rect::from_dlib(l, t, r, b))
+}
+
+/// True when the path's extension names a video container.
+pub fn is_video(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| VIDEO_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
+/// The model to use: `--model` or the 68-point model in the cache.
+pub fn resolve_model(model: Option<&Path>) -> anyhow::Result<PathBuf> {
+    if let Some(m) = model {
+        return Ok(m.to_path_buf());
+    }
+    let name = facecap_core::paths::DLIB_68_MODEL;
+    facecap_core::paths::model_file(name).with_context(|| {
+        format!(
+            "{name} not found in the model cache ({}); run scripts/setup.sh or pass --model",
+            facecap_core::paths::model_dir().map_or_else(|| "unknown".into(), |d| d.display().to_string())
+        )
+    })
 }
 
 /// Runs `facecap landmarks`.
-pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
-    anyhow::bail!(
-        "facecap landmarks is not implemented yet ({} inputs)",
-        args.inputs.len()
-    )
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if args.inputs.len() == 1 && is_video(&args.inputs[0]) {
+        let job = VideoJob {
+            input: args.inputs[0].clone(),
+            out_dir: args.out.clone(),
+            draw: args.draw,
+            model: args.model.clone(),
+        };
+        return run_video(&job);
+    }
+    if let Some(v) = args.inputs.iter().find(|p| is_video(p)) {
+        bail!("{}: a video must be the only input (video mode)", v.display());
+    }
+    let model_path = resolve_model(args.model.as_deref())?;
+    let sp = ShapePredictor::from_file(&model_path)
+        .with_context(|| format!("loading shape predictor {}", model_path.display()))?;
+    let detector = match args.face_box {
+        Some(_) => None,
+        None => Some(facecap_landmarks::detect::FaceDetector::default_model().context("loading the face detector")?),
+    };
+    let mut det_ws = detector.as_ref().map(|d| d.new_workspace());
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let mut ws = sp.new_workspace();
+    let mut points = vec![Point2::origin(); sp.num_parts()];
+    let mut csv = String::from("image,face,left,top,right,bottom,score,num_points,pts_file\n");
+    let mut total_faces = 0usize;
+    let mut grey = GrayImage::new(0, 0);
+    for input in &args.inputs {
+        load_grey(input, args.grey, &mut grey).with_context(|| format!("reading {}", input.display()))?;
+        let faces: Vec<(Rect, Option<f64>)> = match (&args.face_box, &detector, det_ws.as_mut()) {
+            (Some(b), _, _) => vec![(*b, None)],
+            (None, Some(d), Some(dws)) => d
+                .detect(&grey, dws)
+                .with_context(|| format!("detecting faces in {}", input.display()))?
+                .into_iter()
+                .map(|det| (det.rect, Some(det.score)))
+                .collect(),
+            _ => Vec::new(),
+        };
+        let stem = input
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("image")
+            .to_string();
+        let mut drawn = Vec::new();
+        if faces.is_empty() {
+            let _ = writeln!(csv, "{},-1,,,,,,0,", csv_field(&input.display().to_string()));
+            eprintln!("{}: no face found", input.display());
+        }
+        for (k, (rect, score)) in faces.iter().enumerate() {
+            sp.predict_into(&grey, rect, &mut ws, &mut points)
+                .with_context(|| format!("predicting landmarks in {}", input.display()))?;
+            let pts_name = format!("{stem}_{k}.pts");
+            facecap_core::formats::pts::write_pts_points(args.out.join(&pts_name), &points)
+                .with_context(|| format!("writing {pts_name}"))?;
+            let (l, t, r, b) = rect.to_dlib();
+            let _ = writeln!(
+                csv,
+                "{},{k},{l},{t},{r},{b},{},{},{}",
+                csv_field(&input.display().to_string()),
+                score.map_or_else(String::new, |s| format!("{s:.6}")),
+                points.len(),
+                csv_field(&pts_name)
+            );
+            drawn.push((*rect, points.clone()));
+            total_faces += 1;
+        }
+        if args.draw {
+            let mut rgb = match facecap_core::image_io::load_rgb(input) {
+                Ok(img) => img,
+                Err(_) => image::DynamicImage::ImageLuma8(grey.clone()).to_rgb8(),
+            };
+            for (rect, pts) in &drawn {
+                draw_overlay(&mut rgb, rect, pts);
+            }
+            let png = args.out.join(format!("{stem}_landmarks.png"));
+            rgb.save(&png).with_context(|| format!("writing {}", png.display()))?;
+        }
+    }
+    let summary = args.out.join("summary.csv");
+    facecap_core::atomic::write_atomic(&summary, |w| std::io::Write::write_all(w, csv.as_bytes()))
+        .with_context(|| format!("writing {}", summary.display()))?;
+    eprintln!(
+        "{} image(s), {total_faces} face(s); wrote {}",
+        args.inputs.len(),
+        summary.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Video mode: hands a single video input to the tracker's command
+/// ([`crate::cmd_landmarks_video::run`]).
+fn run_video(job: &VideoJob) -> anyhow::Result<ExitCode> {
+    crate::cmd_landmarks_video::run(job)
+}
+
+fn load_grey(path: &Path, mode: GreyMode, out: &mut GrayImage) -> anyhow::Result<()> {
+    match mode {
+        GreyMode::Bt601 => *out = facecap_core::image_io::load_gray(path)?,
+        GreyMode::Mean => {
+            let rgb = facecap_core::image_io::load_rgb(path)?;
+            *out = GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+                let p = rgb.get_pixel(x, y).0;
+                image::Luma([((u32::from(p[0]) + u32::from(p[1]) + u32::from(p[2])) / 3) as u8])
+            });
+        }
+    }
+    Ok(())
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// Draws the box outline (green) and each point as a small filled disc (red).
+fn draw_overlay(img: &mut RgbImage, rect: &Rect, pts: &[Point2<f64>]) {
+    const BOX: Rgb<u8> = Rgb([0, 230, 0]);
+    const POINT: Rgb<u8> = Rgb([255, 40, 40]);
+    let (w, h) = (i64::from(img.width()), i64::from(img.height()));
+    let put = |img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>| {
+        if x >= 0 && y >= 0 && x < w && y < h {
+            img.put_pixel(x as u32, y as u32, c);
+        }
+    };
+    let (l, t, r, b) = rect.to_dlib();
+    let thick = (1 + (r - l) / 200).max(1);
+    for d in 0..thick {
+        for x in l..=r {
+            put(img, x, t + d, BOX);
+            put(img, x, b - d, BOX);
+        }
+        for y in t..=b {
+            put(img, l + d, y, BOX);
+            put(img, r - d, y, BOX);
+        }
+    }
+    let rad = (1 + (r - l) / 150).clamp(1, 6);
+    for p in pts {
+        let (cx, cy) = (p.x.round() as i64, p.y.round() as i64);
+        for dy in -rad..=rad {
+            for dx in -rad..=rad {
+                if dx * dx + dy * dy <= rad * rad {
+                    put(img, cx + dx, cy + dy, POINT);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_parsing() {
+        assert_eq!(parse_box("1,2,30,40"), Ok(Rect::from_dlib(1, 2, 30, 40)));
+        assert!(parse_box("1,2,3").is_err());
+        assert!(parse_box("5,2,3,40").is_err());
+        assert!(parse_box("a,2,3,4").is_err());
+    }
+
+    #[test]
+    fn video_extensions() {
+        assert!(is_video(Path::new("a/b.MP4")));
+        assert!(is_video(Path::new("x.y4m")));
+        assert!(!is_video(Path::new("x.png")));
+        assert!(!is_video(Path::new("mp4")));
+    }
 }

@@ -131,7 +131,7 @@ fn real_models_parse_round_trip_and_resist_truncation() {
             assert!(ErtModel::from_bytes(&bytes[..n]).is_err(), "truncated at {n}");
         }
         // ... and a stride over the whole file.
-        let stride = bytes.len() / 40;
+        let stride = bytes.len() / 12;
         for n in (head..bytes.len()).step_by(stride) {
             assert!(ErtModel::from_bytes(&bytes[..n]).is_err(), "truncated at {n}");
         }

@@ -215,38 +215,23 @@ pub struct Writer {
 }
 
 impl Writer {
+    /// Control byte `flags | size` then the `size` low bytes of `m`, little endian
+    /// (`size` >= 1: zero is one zero byte).
+    fn int_bytes(&mut self, m: u64, flags: u8) {
+        let le = m.to_le_bytes();
+        let size = le.iter().rposition(|&b| b != 0).map_or(1, |i| i + 1);
+        self.bytes.push(flags | size as u8);
+        self.bytes.extend_from_slice(&le[..size]);
+    }
+
     /// Writes an unsigned integer.
-    pub fn unsigned(&mut self, mut v: u64) {
-        let mut buf = [0u8; 9];
-        let mut size = 8u8;
-        for i in 1..=8 {
-            buf[i] = (v & 0xFF) as u8;
-            v >>= 8;
-            if v == 0 {
-                size = i as u8;
-                break;
-            }
-        }
-        buf[0] = size;
-        self.bytes.extend_from_slice(&buf[..=usize::from(size)]);
+    pub fn unsigned(&mut self, v: u64) {
+        self.int_bytes(v, 0);
     }
 
     /// Writes a signed integer.
     pub fn signed(&mut self, v: i64) {
-        let neg = if v < 0 { 0x80u8 } else { 0 };
-        let mut m = v.unsigned_abs();
-        let mut buf = [0u8; 9];
-        let mut size = 8u8;
-        for i in 1..=8 {
-            buf[i] = (m & 0xFF) as u8;
-            m >>= 8;
-            if m == 0 {
-                size = i as u8;
-                break;
-            }
-        }
-        buf[0] = size | neg;
-        self.bytes.extend_from_slice(&buf[..=usize::from(size)]);
+        self.int_bytes(v.unsigned_abs(), if v < 0 { 0x80 } else { 0 });
     }
 
     /// Writes a float as dlib's `float_details` (mantissa, exponent).
