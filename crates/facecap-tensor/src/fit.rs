@@ -190,6 +190,7 @@ pub struct FitState {
 pub struct FitWorkspace {
     alpha: Vec<f64>,
     beta: Vec<f64>,
+    ab: Vec<f64>,
     pts: Vec<Point3<f64>>,
     row0: Vec<f64>,
     row1: Vec<f64>,
@@ -350,6 +351,7 @@ impl Fitter {
         FitWorkspace {
             alpha: vec![0.0; self.r_id],
             beta: vec![0.0; self.r_exp],
+            ab: vec![0.0; self.r_id * self.r_exp],
             pts: vec![Point3::origin(); n],
             row0: vec![0.0; r],
             row1: vec![0.0; r],
@@ -398,19 +400,26 @@ impl Fitter {
         Ok(())
     }
 
-    /// Model points for the state's weights into `ws.pts`.
-    fn update_points(&self, state: &FitState, ws: &mut FitWorkspace) {
+    /// Mode coordinates `alpha = U_id^T w_id`, `beta = U_exp^T w_exp` into `ws`.
+    fn update_modes(&self, state: &FitState, ws: &mut FitWorkspace) {
         mat_t_vec(&self.u_id, self.ni, self.r_id, &state.w_id, &mut ws.alpha);
         mat_t_vec(&self.u_exp, self.ne, self.r_exp, &state.w_exp, &mut ws.beta);
+    }
+
+    /// Model points for the state's weights into `ws.pts` (and the modes).
+    fn update_points(&self, state: &FitState, ws: &mut FitWorkspace) {
+        self.update_modes(state, ws);
+        // p = m + <core_row, alpha kron beta>: one long contiguous dot per coordinate.
+        for (a, chunk) in ws.alpha.iter().zip(ws.ab.chunks_exact_mut(self.r_exp)) {
+            for (o, b) in chunk.iter_mut().zip(&ws.beta) {
+                *o = a * b;
+            }
+        }
         let blk = self.r_id * self.r_exp;
         for (k, p) in ws.pts.iter_mut().enumerate() {
             for c in 0..3 {
                 let row = &self.core[(3 * k + c) * blk..(3 * k + c + 1) * blk];
-                let mut acc = 0.0;
-                for (a, r) in row.chunks_exact(self.r_exp).enumerate() {
-                    acc += ws.alpha[a] * dot(r, &ws.beta);
-                }
-                p[c] = self.mean[3 * k + c] + acc;
+                p[c] = self.mean[3 * k + c] + dot(row, &ws.ab);
             }
         }
     }
@@ -654,7 +663,7 @@ impl Fitter {
     }
 
     fn exp_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
-        self.update_points(state, ws); // refresh alpha/beta
+        self.update_modes(state, ws);
         self.clear_normal(Block::Exp, ws);
         self.accumulate(Block::Exp, input, state, ws, 1.0);
         let mut w = std::mem::take(&mut state.w_exp);
@@ -681,12 +690,12 @@ impl Fitter {
         for s in 0..self.params.max_sweeps {
             sweeps = s + 1;
             if s > 0 {
-                self.update_points(state, ws);
+                // ws.pts holds the current points from the cost evaluation.
                 self.pose_step(input, state, ws)?;
             }
             self.exp_step(input, state, ws)?;
             if self.params.update_identity {
-                self.update_points(state, ws);
+                self.update_modes(state, ws);
                 self.clear_normal(Block::Id, ws);
                 self.accumulate(Block::Id, input, state, ws, 1.0);
                 let mut w = std::mem::take(&mut state.w_id);
@@ -786,7 +795,7 @@ impl Fitter {
             if self.params.update_identity {
                 self.clear_normal(Block::Id, ws);
                 for (f, s) in frames.iter().zip(states.iter()) {
-                    self.update_points(s, ws);
+                    self.update_modes(s, ws);
                     self.accumulate(Block::Id, f, s, ws, 1.0);
                 }
                 self.solve_block(Block::Id, self.params.lambda_id, &mut w_id, ws)?;
@@ -829,7 +838,20 @@ impl Fitter {
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+    // Four independent accumulators let the compiler vectorise the reduction.
+    let mut acc = [0.0f64; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for j in 0..4 {
+            acc[j] += x[j] * y[j];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
 }
 
 /// `out = U^T w` for row-major `u` of shape `(rows, cols)`.

@@ -34,6 +34,7 @@ pub mod nnls;
 pub mod obj;
 pub mod poisson;
 pub mod pose;
+pub mod reanimate;
 pub mod synth;
 pub mod tensor;
 pub mod transfer;

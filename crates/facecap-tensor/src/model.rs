@@ -348,6 +348,54 @@ impl TensorModel {
             .collect())
     }
 
+    /// The model as a blendshape rig for a fixed identity: `f(w_id, w_exp)` is linear
+    /// in `w_exp`, `f = m + sum_e w_exp[e] B_e(w_id)` with
+    /// `B_e = M x2 (U_id^T w_id) x3 (U_exp^T unit_e)`, so the rig's base mesh is the mean
+    /// face `m` and target `e` (named after database expression `e`) has deltas `B_e`.
+    /// Posing it with weights `w_exp` reproduces `f(w_id, w_exp)` exactly.
+    ///
+    /// # Errors
+    /// As [`Self::generate`].
+    pub fn expression_rig(&self, w_id: &[f64]) -> Result<facecap_core::mesh::MorphMesh> {
+        use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
+        check_len("identity weights", self.num_identities(), w_id.len())?;
+        let mut alpha = vec![0.0; self.rank_id()];
+        self.id_modes_into(w_id, &mut alpha);
+        let zero = vec![0.0; self.num_expressions()];
+        let base = self.generate(w_id, &zero)?;
+        let to_pts = |f: &[f64]| -> Vec<nalgebra::Point3<f32>> {
+            f.chunks_exact(3)
+                .map(|c| nalgebra::Point3::new(c[0] as f32, c[1] as f32, c[2] as f32))
+                .collect()
+        };
+        let mut targets = Vec::with_capacity(self.num_expressions());
+        let mut beta = vec![0.0; self.rank_exp()];
+        let mut out = vec![0.0; self.mean.len()];
+        for (e, name) in self.expressions.iter().enumerate() {
+            let mut unit = zero.clone();
+            unit[e] = 1.0;
+            self.exp_modes_into(&unit, &mut beta);
+            self.generate_modes_into(&alpha, &beta, &mut out)?;
+            let deltas = out
+                .chunks_exact(3)
+                .zip(base.chunks_exact(3))
+                .map(|(a, b)| nalgebra::Vector3::new((a[0] - b[0]) as f32, (a[1] - b[1]) as f32, (a[2] - b[2]) as f32))
+                .collect();
+            targets.push(MorphTarget {
+                name: name.clone(),
+                deltas,
+            });
+        }
+        Ok(MorphMesh {
+            base: Mesh {
+                positions: to_pts(&base),
+                triangles: self.triangles.clone(),
+                ..Default::default()
+            },
+            targets,
+        })
+    }
+
     /// Serialises to the version-1 model format (module docs) with `f64` or `f32` scalars.
     pub fn to_bytes(&self, f32_scalars: bool) -> Vec<u8> {
         let mut b = Vec::new();

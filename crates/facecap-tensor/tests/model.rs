@@ -287,3 +287,54 @@ fn rigs_give_sampled_identities_times_expressions() {
         Err(Error::DimensionMismatch { .. })
     ));
 }
+
+#[test]
+fn expression_rig_reproduces_the_generative_function() {
+    let d = synth::database(80, 4, 3, 8).unwrap();
+    let (m, _) = TensorModel::build(&d, &HosvdParams::default()).unwrap();
+    let w_id = [0.1, 0.5, 0.3, 0.1];
+    let w_exp = [0.2, 0.7, 0.4];
+    let rig = m.expression_rig(&w_id).unwrap();
+    assert_eq!(rig.targets.len(), 3);
+    let mut posed = Vec::new();
+    rig.pose_into(&w_exp, &mut posed).unwrap();
+    let f = m.generate(&w_id, &w_exp).unwrap();
+    for (p, c) in posed.iter().zip(f.chunks_exact(3)) {
+        for k in 0..3 {
+            assert!((p[k] as f64 - c[k]).abs() < 1e-4);
+        }
+    }
+}
+
+#[test]
+fn closest_visible_vertex_prefers_the_front() {
+    use facecap_core::camera::{Intrinsics, ModelToCamera};
+    use facecap_tensor::features::{closest_visible_vertices, grid_samples_in_polygon};
+    use nalgebra::{Point2, Point3, Vector3};
+    // Two vertices on the same ray: the nearer one (z = 50) must win.
+    let verts = vec![
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(0.0, 0.0, 10.0),
+        Point3::new(5.0, 0.0, 0.0),
+    ];
+    let pose = ModelToCamera::from_rvec_tvec(Vector3::zeros(), Vector3::new(0.0, 0.0, 60.0));
+    // Camera looks along +Z; model +Z points away here, so vertex 0 (z_cam = 60) is nearer than vertex 1 (70).
+    let k = Intrinsics::new(500.0, 500.0, 100.0, 100.0).unwrap();
+    let got = closest_visible_vertices(
+        &verts,
+        &pose,
+        &k,
+        &[Point2::new(100.2, 100.0), Point2::new(500.0, 0.0)],
+        3.0,
+    )
+    .unwrap();
+    assert_eq!(got, vec![Some(0), None]);
+    let square = [
+        Point2::new(0.0, 0.0),
+        Point2::new(10.0, 0.0),
+        Point2::new(10.0, 10.0),
+        Point2::new(0.0, 10.0),
+    ];
+    let s = grid_samples_in_polygon(&square, 0.0, 2.5);
+    assert!(s.len() >= 9 && s.iter().all(|p| p.x >= 0.0 && p.x <= 10.0));
+}
