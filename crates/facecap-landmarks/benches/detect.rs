@@ -49,6 +49,14 @@ fn frames() -> Vec<(String, GrayImage)> {
     ]
 }
 
+/// CPU time of the calling thread (`/proc/thread-self/schedstat`, nanoseconds), so the
+/// numbers compare with the dlib anchor's CPU-time column on a loaded machine.
+fn thread_cpu() -> Option<Duration> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: u64 = s.split_whitespace().next()?.parse().ok()?;
+    Some(Duration::from_nanos(ns))
+}
+
 fn bench(c: &mut Criterion) {
     let Some(model) = paths::model_file_or_skip("bench_detect", DLIB_FRONTAL_MODEL) else {
         return;
@@ -79,6 +87,18 @@ fn bench(c: &mut Criterion) {
             g.bench_with_input(BenchmarkId::new(pname, &name), &img, |b, img| {
                 b.iter(|| d.detect_into(img, &mut ws, &mut out).unwrap())
             });
+            if par == Par::Seq && thread_cpu().is_some() {
+                // same work, timed by the thread's CPU clock instead of the wall clock
+                g.bench_with_input(BenchmarkId::new(format!("{pname}_cpu"), &name), &img, |b, img| {
+                    b.iter_custom(|iters| {
+                        let t0 = thread_cpu().unwrap_or_default();
+                        for _ in 0..iters {
+                            d.detect_into(img, &mut ws, &mut out).unwrap();
+                        }
+                        thread_cpu().unwrap_or_default().saturating_sub(t0)
+                    })
+                });
+            }
         }
     }
     g.finish();
