@@ -1,4 +1,4 @@
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::needless_range_loop)]
 //! Steady per-frame cost: one tracking frame (68 landmarks, 11 muscles + jaw) in both
 //! solver modes, and posing a full mesh. Workspaces are built outside the timed loop.
 

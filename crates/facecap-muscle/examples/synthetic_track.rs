@@ -1,4 +1,4 @@
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::needless_range_loop)]
 //! Tracks a synthetic ground-truth sequence and prints the thesis' error measure for both
 //! solvers at several noise levels: `cargo run --release -p facecap-muscle --example synthetic_track`.
 

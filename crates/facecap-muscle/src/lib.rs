@@ -26,6 +26,9 @@
 //! assert_eq!(out[1], pts[1]);               // outside Rf: unmoved
 //! ```
 
+// Index loops over several parallel buffers read better than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
 pub mod defaults;
 pub mod deform;
 pub mod error;

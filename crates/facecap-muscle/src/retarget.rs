@@ -208,7 +208,7 @@ impl Grid {
                     if let Some(v) = self.map.get(&(x + dx, y + dy, z + dz)) {
                         for &i in v {
                             let d = (points[i] - p).norm();
-                            if d <= radius && best.is_none_or(|b| d < b.0) {
+                            if d <= radius && best.map_or(true, |b| d < b.0) {
                                 best = Some((d, i));
                             }
                         }

@@ -1,4 +1,4 @@
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::needless_range_loop)]
 // A counting global allocator needs `unsafe impl GlobalAlloc`; this test file only.
 #![allow(unsafe_code)]
 //! Posing and tracking allocate nothing per frame after a warm-up frame.

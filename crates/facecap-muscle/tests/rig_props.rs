@@ -1,4 +1,4 @@
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::needless_range_loop)]
 //! Guarantees of the deformers and the rig: identity at rest, linearity in the
 //! contractions, fast path == slow reference, analytic == finite-difference derivatives,
 //! mirror symmetry, parameter validation.

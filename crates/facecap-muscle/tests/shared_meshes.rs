@@ -1,4 +1,4 @@
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::needless_range_loop)]
 //! The default set on the shared meshes (ICT, SFM, the James scan), baking, and retargeting.
 //! Skips (with a SKIP line) when the shared data is absent.
 

@@ -1,4 +1,4 @@
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::needless_range_loop)]
 //! Synthetic ground truth: deform a mesh with known contractions, jaw and head pose, project
 //! with noise, track, and score with the thesis' error measure.
 
@@ -46,13 +46,6 @@ fn run(model: &TrackModel, seq: &SyntheticSequence, params: TrackParams) -> Scor
             )
             .unwrap();
         rms += rep.rms_px;
-        if std::env::var_os("MUSCLE_DEBUG").is_some() && f < 12 {
-            let tp = &seq.poses[f];
-            eprintln!("f{f} rms {:.3} pose_rms {:.3} gn {} jaw {:.3}/{:.3} t {:?} vs {:?} rv {:?} vs {:?}\n  c {:?}\n  t {:?}", rep.rms_px, rep.pose_rms_px, rep.gn_iterations, out.jaw, seq.jaw[f],
-              out.pose.tvec().as_slice(), tp.tvec().as_slice(), out.pose.rvec().as_slice(), tp.rvec().as_slice(),
-              out.contractions.iter().map(|v| (v*100.0).round()/100.0).collect::<Vec<_>>(),
-              seq.contractions[f].iter().map(|v| (v*100.0).round()/100.0).collect::<Vec<_>>());
-        }
         // Thesis measure: mean |x_eval - x_true| over keyframes and parameters, jaw / (pi/4).
         let mut e = 0.0;
         for (a, b) in out.contractions.iter().zip(&seq.contractions[f]) {
