@@ -1,7 +1,7 @@
 //! Video mode of `facecap landmarks` (tracker): `facecap landmarks VIDEO --out DIR [--draw]`.
 //!
 //! Runs [`facecap_landmarks::tracker::LandmarkTracker`] (dlib-compatible HOG
-//! detector + ERT shape predictor + pyramidal LK, One Euro filter on) over every
+//! detector + ERT shape predictor + pyramidal LK, unfiltered) over every
 //! frame and writes, in `DIR`:
 //!
 //! * `landmarks.csv` — one row per frame, OpenFace-style columns
@@ -24,7 +24,6 @@ use facecap_core::landmarks::{Rect, NUM_LANDMARKS};
 use facecap_core::video::{open_source, Frame, SourceOptions};
 use facecap_landmarks::detect::FaceDetector;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
-use facecap_landmarks::tracker::one_euro::OneEuroParams;
 use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
 use image::{GrayImage, Rgb, RgbImage};
 
@@ -39,10 +38,9 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
             output: OutputPrecision::SubPixel,
         });
     let det = FaceDetector::default_model().context("loading the face detector")?;
-    let params = TrackerParams {
-        filter: Some(OneEuroParams::default()),
-        ..TrackerParams::default()
-    };
+    // Unfiltered (the configuration checked against dlib on the shared clips); the One
+    // Euro filter (`TrackerParams::filter`) trades accuracy on fast expressions for less jitter.
+    let params = TrackerParams::default();
     let tracker = LandmarkTracker::new(det, sp, params)?;
     let mut ws = tracker.new_workspace();
     let mut state = TrackerState::new();
@@ -59,7 +57,10 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
     let mut csv = FrameCsvWriter::create(&csv_path, &landmark_columns())?;
 
     let bar = if std::io::stderr().is_terminal() {
-        let b = src.info().frame_count.map_or_else(indicatif::ProgressBar::no_length, indicatif::ProgressBar::new);
+        let b = src
+            .info()
+            .frame_count
+            .map_or_else(indicatif::ProgressBar::no_length, indicatif::ProgressBar::new);
         if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {per_sec} {eta}") {
             b.set_style(style);
         }
@@ -149,7 +150,11 @@ fn draw(gray: &GrayImage, f: &TrackedFrame, canvas: &mut RgbImage) {
         }
     }
     if f.confidence > 0.0 {
-        let c = if f.success { Rgb([255, 0, 0]) } else { Rgb([255, 255, 0]) };
+        let c = if f.success {
+            Rgb([255, 0, 0])
+        } else {
+            Rgb([255, 255, 0])
+        };
         for p in f.landmarks.points.iter() {
             let (x, y) = (p.x.round() as i64, p.y.round() as i64);
             for (dx, dy) in [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)] {

@@ -38,7 +38,16 @@ mod rand_distr_free {
 
 fn decode_gray(path: &Path) -> Vec<GrayImage> {
     let probe = Command::new("ffprobe")
-        .args(["-v", "error", "-select_streams", "v:0", "-show_entries", "stream=width,height", "-of", "csv=p=0"])
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+            "stream=width,height",
+            "-of",
+            "csv=p=0",
+        ])
         .arg(path)
         .output()
         .unwrap();
@@ -51,7 +60,10 @@ fn decode_gray(path: &Path) -> Vec<GrayImage> {
         .args(["-f", "rawvideo", "-pix_fmt", "gray", "-"])
         .output()
         .unwrap();
-    out.stdout.chunks_exact((w * h) as usize).map(|c| GrayImage::from_raw(w, h, c.to_vec()).unwrap()).collect()
+    out.stdout
+        .chunks_exact((w * h) as usize)
+        .map(|c| GrayImage::from_raw(w, h, c.to_vec()).unwrap())
+        .collect()
 }
 
 #[derive(serde::Deserialize)]
@@ -80,7 +92,9 @@ fn run(tracker: &Tracker, frames: &[GrayImage]) -> (Vec<TrackedFrame>, f64, usiz
     let mut secs = 0.0;
     for (k, f) in frames.iter().enumerate() {
         let t = Instant::now();
-        let rep = tracker.track_into(f, k as f64 / 30.0, &mut ws, &mut state, &mut out).unwrap();
+        let rep = tracker
+            .track_into(f, k as f64 / 30.0, &mut ws, &mut state, &mut out)
+            .unwrap();
         secs += t.elapsed().as_secs_f64();
         dets += usize::from(rep.detector_ran);
         res.push(out.clone());
@@ -91,13 +105,23 @@ fn run(tracker: &Tracker, frames: &[GrayImage]) -> (Vec<TrackedFrame>, f64, usiz
 
 fn main() {
     let sp_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).expect("68-point model");
-    let sp = ShapePredictor::from_file(&sp_path).unwrap().with_params(ErtParams { output: OutputPrecision::SubPixel });
+    let sp = ShapePredictor::from_file(&sp_path).unwrap().with_params(ErtParams {
+        output: OutputPrecision::SubPixel,
+    });
     let det = FaceDetector::default_model().unwrap();
     let variant = std::env::args().nth(1).unwrap_or_default();
-    let ert_init = if variant == "mean" { ErtInit::MeanShapeInBox } else { ErtInit::PreviousShape };
+    let ert_init = if variant == "previous" {
+        ErtInit::PreviousShape
+    } else {
+        ErtInit::MeanShapeInBox
+    };
     let configs = [("off", None), ("one-euro", Some(OneEuroParams::default()))];
     let fx: Fixture = serde_json::from_str(
-        &std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../testdata/dlib_track/fixture.json")).unwrap(),
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../testdata/dlib_track/fixture.json"
+        ))
+        .unwrap(),
     )
     .unwrap();
     println!("ert_init {ert_init:?}");
@@ -111,11 +135,17 @@ fn main() {
             still_src = Some(frames[0].clone());
         }
         for (name, filter) in configs {
-            let tracker = LandmarkTracker::new(det.clone(), sp.clone(), TrackerParams { filter, ert_init, ..TrackerParams::default() }).unwrap();
-            // Throughput: best of 2 runs (shared machine).
-            let (res, s1, dets) = run(&tracker, &frames);
-            let (_, s2, _) = run(&tracker, &frames);
-            let secs = s1.min(s2);
+            let tracker = LandmarkTracker::new(
+                det.clone(),
+                sp.clone(),
+                TrackerParams {
+                    filter,
+                    ert_init,
+                    ..TrackerParams::default()
+                },
+            )
+            .unwrap();
+            let (res, secs, dets) = run(&tracker, &frames);
             let found = res.iter().filter(|r| r.success).count();
             let (mut sum, mut n) = (0.0, 0);
             for (r, t) in res.iter().zip(&clip.frames) {
@@ -166,7 +196,16 @@ fn main() {
     println!("| filter | still jitter: mean per-point std (px) | (% IOD) | moving 3 px/frame: mean lag along motion (px) | (frames) | moving: mean error (% IOD) |");
     println!("|---|---|---|---|---|---|");
     for (name, filter) in configs {
-        let tracker = LandmarkTracker::new(det.clone(), sp.clone(), TrackerParams { filter, ert_init, ..TrackerParams::default() }).unwrap();
+        let tracker = LandmarkTracker::new(
+            det.clone(),
+            sp.clone(),
+            TrackerParams {
+                filter,
+                ert_init,
+                ..TrackerParams::default()
+            },
+        )
+        .unwrap();
         let (res, _, _) = run(&tracker, &still);
         let ok: Vec<&TrackedFrame> = res.iter().skip(10).filter(|r| r.success).collect();
         let mut jitter = 0.0;
@@ -188,7 +227,15 @@ fn main() {
         // Lag: reference = unfiltered landmarks on the unshifted frame, moved by the known shift.
         let (mres, _, _) = run(&tracker, &moving);
         let (r0, _, _) = run(
-            &LandmarkTracker::new(det.clone(), sp.clone(), TrackerParams { ert_init, ..TrackerParams::default() }).unwrap(),
+            &LandmarkTracker::new(
+                det.clone(),
+                sp.clone(),
+                TrackerParams {
+                    ert_init,
+                    ..TrackerParams::default()
+                },
+            )
+            .unwrap(),
             std::slice::from_ref(&base),
         );
         let reference = &r0[0].landmarks;

@@ -36,14 +36,22 @@ fn no_allocation_per_frame_after_warm_up() {
         .map(|k| {
             GrayImage::from_fn(320, 240, |x, y| {
                 let (x, y) = (x as f64 - k as f64 * 0.7, y as f64 + k as f64 * 0.3);
-                image::Luma([(128.0 + 50.0 * (x / 6.0).sin() * (y / 8.0).cos() + 40.0 * ((x + 2.0 * y) / 11.0).sin()) as u8])
+                image::Luma([
+                    (128.0 + 50.0 * (x / 6.0).sin() * (y / 8.0).cos() + 40.0 * ((x + 2.0 * y) / 11.0).sin()) as u8,
+                ])
             })
         })
         .collect();
     for fb in [None, Some(1.0)] {
-        let lk = PyramidLk::new(LkParams { forward_backward: fb, ..LkParams::default() }).unwrap();
+        let lk = PyramidLk::new(LkParams {
+            forward_backward: fb,
+            ..LkParams::default()
+        })
+        .unwrap();
         let mut ws = LkWorkspace::new(&lk);
-        let pts: Vec<Point2<f64>> = (0..68).map(|i| Point2::new(40.0 + (i % 17) as f64 * 14.0, 50.0 + (i / 17) as f64 * 35.0)).collect();
+        let pts: Vec<Point2<f64>> = (0..68)
+            .map(|i| Point2::new(40.0 + (i % 17) as f64 * 14.0, 50.0 + (i / 17) as f64 * 35.0))
+            .collect();
         let mut next = vec![Point2::origin(); pts.len()];
         let mut st = vec![TrackStatus::Tracked; pts.len()];
         let mut err = vec![0.0; pts.len()];

@@ -49,18 +49,29 @@ fn decode_gray(path: &Path, w: u32, h: u32, n: usize) -> Option<Vec<GrayImage>> 
         return None;
     }
     let size = (w * h) as usize;
-    Some(out.stdout.chunks_exact(size).map(|c| GrayImage::from_raw(w, h, c.to_vec()).unwrap()).collect())
+    Some(
+        out.stdout
+            .chunks_exact(size)
+            .map(|c| GrayImage::from_raw(w, h, c.to_vec()).unwrap())
+            .collect(),
+    )
 }
 
 #[test]
 fn matches_opencv_calc_optical_flow_pyr_lk() {
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../testdata/opencv_lk/fixture.json")).unwrap();
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../testdata/opencv_lk/fixture.json"
+    ))
+    .unwrap();
     let fx: Fixture = serde_json::from_str(&text).unwrap();
     let lk = PyramidLk::new(LkParams::default()).unwrap();
     let mut ws = LkWorkspace::new(&lk);
     let (mut diffs, mut agree, mut total, mut clips_run) = (Vec::new(), 0usize, 0usize, 0);
     for clip in &fx.clips {
-        let Some(path) = facecap_core::paths::shared_data_file("lk_opencv", &clip.clip) else { continue };
+        let Some(path) = facecap_core::paths::shared_data_file("lk_opencv", &clip.clip) else {
+            continue;
+        };
         let Some(frames) = decode_gray(&path, clip.width, clip.height, fx.n_frames_decoded) else {
             eprintln!("SKIP: lk_opencv: ffmpeg could not decode {}", clip.clip);
             continue;
@@ -69,7 +80,12 @@ fn matches_opencv_calc_optical_flow_pyr_lk() {
         for pair in &clip.pairs {
             let (a, b) = (&frames[pair.frame], &frames[pair.frame + 1]);
             let sum = |g: &GrayImage| g.as_raw().iter().map(|&v| v as u64).sum::<u64>();
-            assert_eq!(sum(a), pair.byte_sum_prev, "decoded frame {} differs from the fixture's", pair.frame);
+            assert_eq!(
+                sum(a),
+                pair.byte_sum_prev,
+                "decoded frame {} differs from the fixture's",
+                pair.frame
+            );
             assert_eq!(sum(b), pair.byte_sum_next);
             ws.reset();
             ws.push_frame(a).unwrap();

@@ -72,11 +72,21 @@ impl ShapeRegressor for MockRegressor {
     }
     fn predict(&self, _: &GrayImage, r: &Rect, _: &mut (), out: &mut [Point2<f64>]) -> Result<()> {
         for (o, m) in out.iter_mut().zip(self.mean.chunks_exact(2)) {
-            *o = Point2::new(r.left + (r.width - 1.0) * m[0] as f64, r.top + (r.height - 1.0) * m[1] as f64);
+            *o = Point2::new(
+                r.left + (r.width - 1.0) * m[0] as f64,
+                r.top + (r.height - 1.0) * m[1] as f64,
+            );
         }
         Ok(())
     }
-    fn predict_from_shape(&self, _: &GrayImage, _: &Rect, init: &[Point2<f64>], _: &mut (), out: &mut [Point2<f64>]) -> Result<()> {
+    fn predict_from_shape(
+        &self,
+        _: &GrayImage,
+        _: &Rect,
+        init: &[Point2<f64>],
+        _: &mut (),
+        out: &mut [Point2<f64>],
+    ) -> Result<()> {
         out.copy_from_slice(init);
         Ok(())
     }
@@ -85,7 +95,9 @@ impl ShapeRegressor for MockRegressor {
 fn texture(w: u32, h: u32, dx: f64, dy: f64) -> GrayImage {
     GrayImage::from_fn(w, h, |x, y| {
         let (x, y) = (x as f64 - dx, y as f64 - dy);
-        image::Luma([(128.0 + 45.0 * (x / 7.0).sin() * (y / 9.0).cos() + 35.0 * ((x + 2.0 * y) / 13.0).sin()
+        image::Luma([(128.0
+            + 45.0 * (x / 7.0).sin() * (y / 9.0).cos()
+            + 35.0 * ((x + 2.0 * y) / 13.0).sin()
             + 20.0 * ((3.0 * x - y) / 17.0).cos()) as u8])
     })
 }
@@ -96,7 +108,10 @@ fn tracker(params: TrackerParams) -> (LandmarkTracker<MockFinder, MockRegressor>
         rect: Rect::new(100.0, 60.0, 121.0, 121.0).unwrap(),
         calls: calls.clone(),
     };
-    (LandmarkTracker::new(finder, MockRegressor::new(), params).unwrap(), calls)
+    (
+        LandmarkTracker::new(finder, MockRegressor::new(), params).unwrap(),
+        calls,
+    )
 }
 
 #[test]
@@ -109,7 +124,9 @@ fn detects_once_then_lk_carries_the_face() {
     let (vx, vy) = (2.3, -1.1); // px per frame
     for k in 0..20 {
         let img = texture(320, 240, vx * k as f64, vy * k as f64);
-        let rep = t.track_into(&img, k as f64 / 30.0, &mut ws, &mut state, &mut out).unwrap();
+        let rep = t
+            .track_into(&img, k as f64 / 30.0, &mut ws, &mut state, &mut out)
+            .unwrap();
         assert!(out.success, "frame {k}: {rep:?} conf {}", out.confidence);
         if k == 0 {
             assert_eq!(rep.action, FrameAction::Detected);
@@ -127,10 +144,12 @@ fn detects_once_then_lk_carries_the_face() {
             assert!(worst < 0.3, "frame {k}: drift {worst}");
         }
     }
-    assert_eq!(calls.load(Ordering::SeqCst), 1, "the detector runs on the first frame only");
+    assert_eq!(
+        calls.load(Ordering::SeqCst),
+        1,
+        "the detector runs on the first frame only"
+    );
 }
-
-
 
 #[test]
 fn flat_frame_loses_the_face_and_texture_brings_it_back() {
@@ -141,8 +160,14 @@ fn flat_frame_loses_the_face_and_texture_brings_it_back() {
     let flat = GrayImage::from_pixel(320, 240, image::Luma([90]));
     let mut actions = Vec::new();
     for k in 0..8 {
-        let img = if (3..5).contains(&k) { flat.clone() } else { texture(320, 240, k as f64, 0.0) };
-        let rep = t.track_into(&img, k as f64 / 30.0, &mut ws, &mut state, &mut out).unwrap();
+        let img = if (3..5).contains(&k) {
+            flat.clone()
+        } else {
+            texture(320, 240, k as f64, 0.0)
+        };
+        let rep = t
+            .track_into(&img, k as f64 / 30.0, &mut ws, &mut state, &mut out)
+            .unwrap();
         actions.push((rep.action, out.success));
     }
     use FrameAction::*;
@@ -201,17 +226,52 @@ fn one_euro_reduces_jitter_and_follows_motion() {
 #[test]
 fn parameters_are_validated() {
     let bad = [
-        TrackerParams { min_lk_fraction: 1.5, ..TrackerParams::default() },
-        TrackerParams { lk_motion_threshold: -1.0, ..TrackerParams::default() },
-        TrackerParams { agree_scale: 0.0, ..TrackerParams::default() },
-        TrackerParams { redetect_below: f64::NAN, ..TrackerParams::default() },
-        TrackerParams { fps: 0.0, ..TrackerParams::default() },
-        TrackerParams { filter: Some(OneEuroParams { min_cutoff: 0.0, ..OneEuroParams::default() }), ..TrackerParams::default() },
-        TrackerParams { filter: Some(OneEuroParams { beta: -1.0, ..OneEuroParams::default() }), ..TrackerParams::default() },
+        TrackerParams {
+            min_lk_fraction: 1.5,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
+            lk_motion_threshold: -1.0,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
+            agree_scale: 0.0,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
+            redetect_below: f64::NAN,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
+            fps: 0.0,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
+            filter: Some(OneEuroParams {
+                min_cutoff: 0.0,
+                ..OneEuroParams::default()
+            }),
+            ..TrackerParams::default()
+        },
+        TrackerParams {
+            filter: Some(OneEuroParams {
+                beta: -1.0,
+                ..OneEuroParams::default()
+            }),
+            ..TrackerParams::default()
+        },
     ];
     for p in bad {
-        let finder = MockFinder { rect: Rect::new(0.0, 0.0, 10.0, 10.0).unwrap(), calls: Arc::new(AtomicUsize::new(0)) };
-        let e = LandmarkTracker::new(finder, MockRegressor::new(), p).unwrap_err().to_string();
-        assert!(e.contains("tracker.") || e.contains("one_euro.") || e.contains("lk."), "{e}");
+        let finder = MockFinder {
+            rect: Rect::new(0.0, 0.0, 10.0, 10.0).unwrap(),
+            calls: Arc::new(AtomicUsize::new(0)),
+        };
+        let e = LandmarkTracker::new(finder, MockRegressor::new(), p)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("tracker.") || e.contains("one_euro.") || e.contains("lk."),
+            "{e}"
+        );
     }
 }

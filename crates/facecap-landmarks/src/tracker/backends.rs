@@ -7,8 +7,8 @@ use nalgebra::Point2;
 
 use super::{FaceFinder, ShapeRegressor};
 use crate::detect::{DetectWorkspace, Detection, FaceDetector};
-use crate::ert::{ErtWorkspace, ShapePredictor};
 use crate::error::Result;
+use crate::ert::{ErtWorkspace, ShapePredictor};
 
 /// Detector workspace plus its detection list.
 #[derive(Debug, Default)]

@@ -16,8 +16,10 @@
 //!    mean shape best fits the shape (least squares over `l`, `t` and one scale `s`
 //!    in `x ≈ l + s·u`, `y ≈ t + s·v`, `(u, v)` the mean shape in box units) —
 //!    i.e. the box the detector would have had to give for the face to sit like the
-//!    mean face. ERT then runs from the initial shape ([`ErtInit::PreviousShape`]) or
-//!    from the mean shape in that box ([`ErtInit::MeanShapeInBox`]). No detector runs.
+//!    mean face. ERT then runs from the mean shape in that box
+//!    ([`ErtInit::MeanShapeInBox`], default: dlib's initialisation with a tracked box)
+//!    or from the carried shape itself ([`ErtInit::PreviousShape`], which drifts). No
+//!    detector runs.
 //! 4. **Confidence** in `[0, 1]`: `lk_fraction · exp(-d_agree / agree_scale) ·
 //!    exp(-max(0, r_shape - shape_tolerance) / shape_scale)`, where `d_agree` is the
 //!    mean distance between ERT's and LK's positions of the LK-tracked points and
@@ -39,7 +41,7 @@
 //! | `lk` | window 21, 3 levels | LK parameters | see [`crate::lk`] |
 //! | `min_lk_fraction` | 0.5 | fraction of landmarks LK must track to keep tracking | 0..=1 |
 //! | `lk_motion_threshold` | 0.5 px | median LK motion above which the shape is moved by LK | >= 0 |
-//! | `ert_init` | `PreviousShape` | how ERT is started on tracked frames | - |
+//! | `ert_init` | `MeanShapeInBox` | how ERT is started on tracked frames | - |
 //! | `agree_scale` | 0.1 | ERT/LK disagreement (÷ inter-ocular) that costs a factor e | > 0 |
 //! | `shape_tolerance` | 0.05 | rigid-point shape residual (÷ inter-ocular) that costs nothing | >= 0 |
 //! | `shape_scale` | 0.05 | residual beyond the tolerance that costs a factor e | > 0 |
@@ -106,9 +108,11 @@ pub trait ShapeRegressor: Send + Sync {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ErtInit {
     /// From the previous frame's landmarks (moved by LK when motion is large).
-    #[default]
+    /// Drifts: 10 % IOD from dlib on `liveportrait_d18` (see docs/tracking.md).
     PreviousShape,
-    /// From the mean shape in the box derived from the previous landmarks.
+    /// From the mean shape in the box derived from the (LK-carried) previous
+    /// landmarks: dlib's own initialisation with a tracked instead of a detected box.
+    #[default]
     MeanShapeInBox,
 }
 
@@ -147,7 +151,7 @@ impl Default for TrackerParams {
             lk: LkParams::default(),
             min_lk_fraction: 0.5,
             lk_motion_threshold: 0.5,
-            ert_init: ErtInit::PreviousShape,
+            ert_init: ErtInit::MeanShapeInBox,
             agree_scale: 0.1,
             shape_tolerance: 0.05,
             shape_scale: 0.05,
@@ -179,13 +183,38 @@ impl TrackerParams {
             }
         };
         let unit = |v: f64| (0.0..=1.0).contains(&v);
-        check("tracker.min_lk_fraction", self.min_lk_fraction, unit(self.min_lk_fraction), "0..=1")?;
-        check("tracker.lk_motion_threshold", self.lk_motion_threshold, self.lk_motion_threshold >= 0.0, ">= 0")?;
+        check(
+            "tracker.min_lk_fraction",
+            self.min_lk_fraction,
+            unit(self.min_lk_fraction),
+            "0..=1",
+        )?;
+        check(
+            "tracker.lk_motion_threshold",
+            self.lk_motion_threshold,
+            self.lk_motion_threshold >= 0.0,
+            ">= 0",
+        )?;
         check("tracker.agree_scale", self.agree_scale, self.agree_scale > 0.0, "> 0")?;
-        check("tracker.shape_tolerance", self.shape_tolerance, self.shape_tolerance >= 0.0, ">= 0")?;
+        check(
+            "tracker.shape_tolerance",
+            self.shape_tolerance,
+            self.shape_tolerance >= 0.0,
+            ">= 0",
+        )?;
         check("tracker.shape_scale", self.shape_scale, self.shape_scale > 0.0, "> 0")?;
-        check("tracker.redetect_below", self.redetect_below, unit(self.redetect_below), "0..=1")?;
-        check("tracker.min_confidence", self.min_confidence, unit(self.min_confidence), "0..=1")?;
+        check(
+            "tracker.redetect_below",
+            self.redetect_below,
+            unit(self.redetect_below),
+            "0..=1",
+        )?;
+        check(
+            "tracker.min_confidence",
+            self.min_confidence,
+            unit(self.min_confidence),
+            "0..=1",
+        )?;
         check("tracker.fps", self.fps, self.fps > 0.0, "> 0")?;
         if let Some(f) = &self.filter {
             f.validate()?;
@@ -317,7 +346,10 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
         }
         let pts: Vec<[f64; 2]> = ms.chunks_exact(2).map(|c| [c[0] as f64, c[1] as f64]).collect();
         let n = pts.len() as f64;
-        let c = [pts.iter().map(|p| p[0]).sum::<f64>() / n, pts.iter().map(|p| p[1]).sum::<f64>() / n];
+        let c = [
+            pts.iter().map(|p| p[0]).sum::<f64>() / n,
+            pts.iter().map(|p| p[1]).sum::<f64>() / n,
+        ];
         let mean_centred: Vec<[f64; 2]> = pts.iter().map(|p| [p[0] - c[0], p[1] - c[1]]).collect();
         let mean_norm2 = mean_centred.iter().map(|p| p[0] * p[0] + p[1] * p[1]).sum();
         Ok(LandmarkTracker {
@@ -475,7 +507,9 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
         if state.tracking && ws.lk.frames_pushed() >= 2 && !periodic {
             // 3. LK carries the previous landmarks.
             let prev = &state.prev.points;
-            let rep = self.lk.track_into(&ws.lk, prev, &mut ws.lk_next, &mut ws.lk_status, &mut ws.lk_err)?;
+            let rep = self
+                .lk
+                .track_into(&ws.lk, prev, &mut ws.lk_next, &mut ws.lk_status, &mut ws.lk_err)?;
             report.lk_tracked = rep.tracked;
             let frac = rep.tracked as f64 / NUM_LANDMARKS as f64;
             if frac >= p.min_lk_fraction {
@@ -495,7 +529,8 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
                 let r = self.box_for_shape(&ws.init);
                 match p.ert_init {
                     ErtInit::PreviousShape => {
-                        self.regressor.predict_from_shape(img, &r, &ws.init, &mut ws.regressor, &mut ws.out)?
+                        self.regressor
+                            .predict_from_shape(img, &r, &ws.init, &mut ws.regressor, &mut ws.out)?
                     }
                     ErtInit::MeanShapeInBox => self.regressor.predict(img, &r, &mut ws.regressor, &mut ws.out)?,
                 }
@@ -521,7 +556,11 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
             }
         }
         if report.action != FrameAction::Tracked || confidence < p.redetect_below {
-            let near = if state.tracking { Some(state.prev.bounding_box()) } else { None };
+            let near = if state.tracking {
+                Some(state.prev.bounding_box())
+            } else {
+                None
+            };
             report.detector_ran = true;
             let found = self.detect_and_fit(img, ws, near.as_ref())?;
             if let Some(r) = found {
