@@ -17,7 +17,12 @@ use rand_chacha::ChaCha8Rng;
 const NV: usize = 3000;
 const NI: usize = 20;
 const NE: usize = 7;
-const TRIALS: usize = 20;
+/// Trials per row (override with `FACECAP_EVIDENCE_TRIALS`).
+const TRIALS_DEFAULT: usize = 20;
+
+fn trials() -> usize {
+    std::env::var("FACECAP_EVIDENCE_TRIALS").ok().and_then(|v| v.parse().ok()).unwrap_or(TRIALS_DEFAULT)
+}
 const NOISE_PX: f64 = 1.0;
 
 fn simplex(rng: &mut ChaCha8Rng, n: usize) -> Vec<f64> {
@@ -49,7 +54,7 @@ fn run(model: &TensorModel, npts: usize, method: Method, lambda: f64, projection
         e[0] = 1.0;
         e
     };
-    for _ in 0..TRIALS {
+    for _ in 0..trials() {
         let mut vs: Vec<u32> = (0..NV as u32).collect();
         for i in 0..npts {
             let j = rng.random_range(i..NV);
@@ -114,7 +119,7 @@ fn run(model: &TensorModel, npts: usize, method: Method, lambda: f64, projection
         px += rep.rms_px;
         sweeps += rep.sweeps as f64;
     }
-    let n = TRIALS as f64;
+    let n = trials() as f64;
     Outcome {
         mesh_rms: mesh / n,
         exp_disp_rms: disp / n,
@@ -143,7 +148,7 @@ fn main() {
         }
         (s / (NI * NE) as f64).sqrt()
     };
-    println!("synthetic database: {NV} vertices, {NI} identities x {NE} expressions; RMS distance of a database face from the mean face {spread:.3} units; {TRIALS} trials per row, noise {NOISE_PX} px, f = 800 px, depth 45-80 units\n");
+    println!("synthetic database: {NV} vertices, {NI} identities x {NE} expressions; RMS distance of a database face from the mean face {spread:.3} units; {} trials per row, noise {NOISE_PX} px, f = 800 px, depth 45-80 units\n", trials());
     println!("### Effect of lambda (68 points, weak perspective)\n");
     println!("| method | lambda | mesh RMS error | expression-displacement RMS error | reprojection RMS (px) | sweeps | ms per fit |");
     println!("|---|---|---|---|---|---|---|");
