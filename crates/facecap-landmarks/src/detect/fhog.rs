@@ -175,6 +175,7 @@ pub(crate) fn geometry(width: usize, height: usize, cell: usize) -> FhogGeometry
 
 /// Computes the padded fHOG image of `img` (`width x height`, row-major) into `out`.
 /// `fw x fh` is the filter (fHOG window) size the padding is made for.
+#[allow(clippy::too_many_arguments)] // image + geometry + reusable buffers, all needed
 pub(crate) fn extract(
     img: &[u8],
     width: usize,

@@ -68,6 +68,9 @@
 //! `scripts/export_dlib_hog.py` (dlib-bin from PyPI) into the model folder; see
 //! `docs/detection.md`.
 
+// Index loops below mirror dlib's loops one to one (bit-exact emulation), so they stay.
+#![allow(clippy::needless_range_loop)]
+
 pub mod fhog;
 pub mod model;
 pub mod pyramid;
