@@ -154,7 +154,10 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     let ert_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
         anyhow::anyhow!("{} is not in the model cache: run scripts/setup.sh", facecap_core::paths::DLIB_68_MODEL)
     })?;
-    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&ert_path)?;
+    // Sub-pixel output: dlib rounds to whole pixels, which adds jitter to tracking.
+    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&ert_path)?.with_params(
+        facecap_landmarks::ert::ErtParams { output: facecap_landmarks::ert::OutputPrecision::SubPixel },
+    );
     let mut tracker_params = TrackerParams::default();
     if args.no_filter {
         tracker_params.filter = None;

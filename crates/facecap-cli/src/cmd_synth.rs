@@ -74,7 +74,9 @@ pub fn detect_landmarks(gray: &GrayImage) -> anyhow::Result<Option<Landmarks68>>
     let model = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
         anyhow::anyhow!("{} not in the model cache: run scripts/setup.sh", facecap_core::paths::DLIB_68_MODEL)
     })?;
-    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&model)?;
+    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&model)?.with_params(
+        facecap_landmarks::ert::ErtParams { output: facecap_landmarks::ert::OutputPrecision::SubPixel },
+    );
     let mut ws = ert.new_workspace();
     let mut pts = vec![Point2::origin(); ert.num_parts()];
     ert.predict_into(gray, &face.rect, &mut ws, &mut pts)?;
