@@ -89,6 +89,7 @@ pub fn pyr_down(img: &RefImage) -> RefImage {
 
 /// Scharr derivatives `(Ix, Iy)` with reflect-101 borders, in OpenCV's scale
 /// (32x the central-difference gradient).
+#[allow(clippy::needless_range_loop)] // the 3x3 kernel indices read clearest as indices
 pub fn scharr(img: &RefImage) -> (RefImage, RefImage) {
     const KX: [[f64; 3]; 3] = [[-3.0, 0.0, 3.0], [-10.0, 0.0, 10.0], [-3.0, 0.0, 3.0]];
     let mut ix = vec![0.0; img.width * img.height];

@@ -97,7 +97,8 @@ impl OneEuroState {
     /// Filters sample `x` taken `dt` seconds after the previous one (`dt > 0`;
     /// a non-positive or non-finite `dt` passes `x` through and restarts).
     pub fn filter(&mut self, p: &OneEuroParams, x: f64, dt: f64) -> f64 {
-        if !self.initialised || !(dt.is_finite() && dt > 0.0) {
+        let dt_ok = dt.is_finite() && dt > 0.0;
+        if !self.initialised || !dt_ok {
             *self = OneEuroState {
                 x_hat: x,
                 dx_hat: 0.0,
