@@ -21,7 +21,10 @@ const NE: usize = 7;
 const TRIALS_DEFAULT: usize = 20;
 
 fn trials() -> usize {
-    std::env::var("FACECAP_EVIDENCE_TRIALS").ok().and_then(|v| v.parse().ok()).unwrap_or(TRIALS_DEFAULT)
+    std::env::var("FACECAP_EVIDENCE_TRIALS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(TRIALS_DEFAULT)
 }
 const NOISE_PX: f64 = 1.0;
 

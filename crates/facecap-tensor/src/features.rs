@@ -61,7 +61,7 @@ pub fn closest_visible_vertices(
 /// Regular grid samples (spacing `step` pixels) inside the polygon `outline`
 /// (e.g. the mouth or brow landmarks expanded by `margin` pixels from their centroid).
 pub fn grid_samples_in_polygon(outline: &[Point2<f64>], margin: f64, step: f64) -> Vec<Point2<f64>> {
-    if outline.len() < 3 || !(step > 0.0) {
+    if outline.len() < 3 || step.is_nan() || step <= 0.0 {
         return Vec::new();
     }
     let c = outline.iter().fold(nalgebra::Vector2::zeros(), |a, p| a + p.coords) / outline.len() as f64;

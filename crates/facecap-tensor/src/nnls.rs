@@ -53,7 +53,7 @@ pub fn solve_into(h: &[f64], f: &[f64], x: &mut [f64], grad: &mut [f64], max_ite
     debug_assert_eq!(f.len(), n);
     debug_assert_eq!(grad.len(), n);
     for v in x.iter_mut() {
-        if !(*v > 0.0) {
+        if v.is_nan() || *v <= 0.0 {
             *v = 0.0;
         }
     }

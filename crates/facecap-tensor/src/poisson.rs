@@ -179,7 +179,7 @@ pub fn clone_plane(
         iterations += 1;
         apply(&pdir, &mut ap);
         let pap: f64 = pdir.iter().zip(&ap).map(|(a, b)| a * b).sum();
-        if !(pap > 0.0) {
+        if pap.is_nan() || pap <= 0.0 {
             break;
         }
         let a = rz / pap;

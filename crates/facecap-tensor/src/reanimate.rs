@@ -161,9 +161,7 @@ pub fn clone_mouth(
     let mut out = vec![0.0; tw * th];
     for ch in 0..3 {
         let t: Vec<f64> = (0..tw * th).map(|p| target[p * 3 + ch] as f64).collect();
-        let s: Vec<f64> = (0..tw * th)
-            .map(|p| warped[p].map_or(t[p], |w| w[ch]))
-            .collect();
+        let s: Vec<f64> = (0..tw * th).map(|p| warped[p].map_or(t[p], |w| w[ch])).collect();
         let r = clone_plane(&t, &s, &mask, tw, th, params, &mut out)?;
         for p in 0..tw * th {
             target[p * 3 + ch] = out[p].round().clamp(0.0, 255.0) as u8;
