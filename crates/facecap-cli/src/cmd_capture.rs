@@ -68,9 +68,10 @@ pub struct Args {
     /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`).
     #[arg(long, default_value_t = 0.0)]
     pub temporal: f64,
-    /// Turn the landmark jitter filter (One Euro) off.
+    /// Smooth landmarks with the One Euro filter (less jitter on still faces, some lag
+    /// on fast motion; off by default, see docs/tracking.md).
     #[arg(long)]
-    pub no_filter: bool,
+    pub smooth: bool,
     /// Redo videos that already have a finished capture.
     #[arg(long)]
     pub force: bool,
@@ -159,8 +160,8 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         facecap_landmarks::ert::ErtParams { output: facecap_landmarks::ert::OutputPrecision::SubPixel },
     );
     let mut tracker_params = TrackerParams::default();
-    if args.no_filter {
-        tracker_params.filter = None;
+    if args.smooth {
+        tracker_params.filter = Some(facecap_landmarks::tracker::one_euro::OneEuroParams::default());
     }
     let tracker = LandmarkTracker::new(detector, ert, tracker_params)?;
     let muscles = args
@@ -173,7 +174,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "rig": rig_name,
         "solver": method.name(),
         "temporal": args.temporal,
-        "filter": !args.no_filter,
+        "smooth": args.smooth,
         "camera": args.camera,
         "muscles": args.muscles,
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),

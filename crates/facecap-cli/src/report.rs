@@ -249,7 +249,7 @@ pub fn write_report_html(
         let _ = write!(html, "<div><img src=\"{}\"></div>", escape(p));
     }
     html.push_str("</body></html>\n");
-    facecap_core::atomic::write_atomic(&dir.join("report.html"), |w| w.write_all(html.as_bytes()))?;
+    facecap_core::atomic::write_atomic(dir.join("report.html"), |w| w.write_all(html.as_bytes()))?;
     Ok(())
 }
 
