@@ -79,8 +79,15 @@ impl MuscleRun {
                     self.points[slot] = l.points[*i];
                 }
             }
-            let input = facecap_muscle::track::TrackInput { points: &self.points, weights: Some(&self.weights) };
-            if self.tracker.solve_into(&input, &mut self.ws, &mut self.state, &mut self.out).is_ok() {
+            let input = facecap_muscle::track::TrackInput {
+                points: &self.points,
+                weights: Some(&self.weights),
+            };
+            if self
+                .tracker
+                .solve_into(&input, &mut self.ws, &mut self.state, &mut self.out)
+                .is_ok()
+            {
                 let m = self.out.contractions.len();
                 self.values[..m].copy_from_slice(&self.out.contractions);
                 self.values[m] = self.out.jaw;
@@ -140,7 +147,11 @@ impl TensorSetup {
         let mut columns: Vec<String> = facecap_core::csv::POSE_COLUMNS.iter().map(|s| s.to_string()).collect();
         columns.extend((0..model.num_identities()).map(|i| format!("id_{i}")));
         columns.extend((0..model.num_expressions()).map(|i| format!("exp_{i}")));
-        Ok(TensorSetup { fitter, landmarks, columns })
+        Ok(TensorSetup {
+            fitter,
+            landmarks,
+            columns,
+        })
     }
 
     /// Starts a video: `tensor.csv` in `out_dir`.
@@ -170,8 +181,11 @@ impl TensorRun {
             for (slot, &i) in self.landmarks.iter().enumerate() {
                 self.image[slot] = l.points[i];
             }
-            let input =
-                facecap_tensor::fit::FitInput { image: &self.image, weights: &self.weights, intrinsics: self.camera };
+            let input = facecap_tensor::fit::FitInput {
+                image: &self.image,
+                weights: &self.weights,
+                intrinsics: self.camera,
+            };
             if self.fitter.solve_into(&input, &mut self.ws, &mut self.state).is_ok() {
                 if let Some(p) = &self.state.pose {
                     let tv = p.tvec();

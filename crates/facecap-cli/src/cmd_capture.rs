@@ -148,17 +148,24 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         }
     };
     let rig = BlendshapeRig::from_morph_mesh(rig_mesh.clone(), &map, &rig_name)?;
-    let objective = ObjectiveParams { temporal: args.temporal, ..ObjectiveParams::default() };
+    let objective = ObjectiveParams {
+        temporal: args.temporal,
+        ..ObjectiveParams::default()
+    };
     objective.validate()?;
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
     let detector = facecap_landmarks::detect::FaceDetector::default_model()?;
     let ert_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
-        anyhow::anyhow!("{} is not in the model cache: run scripts/setup.sh", facecap_core::paths::DLIB_68_MODEL)
+        anyhow::anyhow!(
+            "{} is not in the model cache: run scripts/setup.sh",
+            facecap_core::paths::DLIB_68_MODEL
+        )
     })?;
     // Sub-pixel output: dlib rounds to whole pixels, which adds jitter to tracking.
-    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&ert_path)?.with_params(
-        facecap_landmarks::ert::ErtParams { output: facecap_landmarks::ert::OutputPrecision::SubPixel },
-    );
+    let ert =
+        facecap_landmarks::ert::ShapePredictor::from_file(&ert_path)?.with_params(facecap_landmarks::ert::ErtParams {
+            output: facecap_landmarks::ert::OutputPrecision::SubPixel,
+        });
     let mut tracker_params = TrackerParams::default();
     if args.smooth {
         tracker_params.filter = Some(facecap_landmarks::tracker::one_euro::OneEuroParams::default());
@@ -169,7 +176,11 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         .as_deref()
         .map(|m| crate::capture_extras::MuscleSetup::new(m, &rig_mesh, &map))
         .transpose()?;
-    let tensor = args.tensor.as_deref().map(|p| crate::capture_extras::TensorSetup::new(p, args.tensor_landmark_map.as_deref())).transpose()?;
+    let tensor = args
+        .tensor
+        .as_deref()
+        .map(|p| crate::capture_extras::TensorSetup::new(p, args.tensor_landmark_map.as_deref()))
+        .transpose()?;
     let args_echo = json!({
         "rig": rig_name,
         "solver": method.name(),
@@ -217,7 +228,10 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     }
     let setup = build_setup(&args)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
+    let jobs = args
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .max(1);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build()?;
     let progress = crate::progress::Progress::new(args.quiet);
     let t0 = Instant::now();
@@ -227,7 +241,11 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             .map(|video| {
                 let out_dir = args.out.join(video_stem(video));
                 let outcome = if out_dir.join("summary.json").is_file() && !args.force {
-                    progress.line(&format!("skip {} (finished capture in {}; --force redoes it)", video.display(), out_dir.display()));
+                    progress.line(&format!(
+                        "skip {} (finished capture in {}; --force redoes it)",
+                        video.display(),
+                        out_dir.display()
+                    ));
                     Outcome::Skipped(out_dir)
                 } else {
                     match capture_one(video, &out_dir, &args, &setup, &interrupted, &progress) {
@@ -255,7 +273,10 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}))?
+        );
     } else if !args.quiet {
         for (video, o) in &outcomes {
             match o {
@@ -276,11 +297,17 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         eprintln!("interrupted: unfinished captures were discarded");
         return Ok(std::process::ExitCode::from(130));
     }
-    Ok(if all_ok { std::process::ExitCode::SUCCESS } else { std::process::ExitCode::FAILURE })
+    Ok(if all_ok {
+        std::process::ExitCode::SUCCESS
+    } else {
+        std::process::ExitCode::FAILURE
+    })
 }
 
 fn video_stem(p: &Path) -> String {
-    p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "video".into())
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "video".into())
 }
 
 /// Per-stage wall times in seconds.
@@ -330,7 +357,10 @@ fn capture_one(
     let mut tensor_run = setup.tensor.as_ref().map(|t| t.start(out_dir, camera)).transpose()?;
 
     let mut bar = progress.bar(video, info.frame_count);
-    let sheet_every = info.frame_count.map(|n| (n as usize / args.sheet_frames.max(1)).max(1)).unwrap_or(30);
+    let sheet_every = info
+        .frame_count
+        .map(|n| (n as usize / args.sheet_frames.max(1)).max(1))
+        .unwrap_or(30);
     let mut sheet: Vec<(u64, GrayImage, FrameOut)> = Vec::new();
     let mut frames: Vec<FrameOut> = Vec::new();
     let mut frame = Frame::default();
@@ -347,7 +377,13 @@ fn capture_one(
         }
         timings.decode += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        tracker.track_into(&frame.gray, frame.timestamp_s, &mut tracker_ws, &mut tracker_state, &mut tracked)?;
+        tracker.track_into(
+            &frame.gray,
+            frame.timestamp_s,
+            &mut tracker_ws,
+            &mut tracker_state,
+            &mut tracked,
+        )?;
         timings.track += t.elapsed().as_secs_f64();
         let lms = tracked.success.then(|| tracked.landmarks.clone());
         landmark_values(lms.as_ref(), &mut lm_values);
@@ -379,7 +415,11 @@ fn capture_one(
                     prev_weights.copy_from_slice(&solution.weights);
                 }
                 Err(e) => {
-                    progress.line(&format!("{}: frame {}: solver failed: {e}", video.display(), frame.index));
+                    progress.line(&format!(
+                        "{}: frame {}: solver failed: {e}",
+                        video.display(),
+                        frame.index
+                    ));
                     solve_state.reset();
                 }
             }
@@ -433,7 +473,12 @@ fn capture_one(
     if let Some(tr) = tensor_run {
         tr.finish()?;
     }
-    let livelink = crate::livelink::write_if_arkit(&out_dir.join("livelink.csv"), &names, &frames_weights(&frames), &frame_times(&frames))?;
+    let livelink = crate::livelink::write_if_arkit(
+        &out_dir.join("livelink.csv"),
+        &names,
+        &frames_weights(&frames),
+        &frame_times(&frames),
+    )?;
     write_animation(out_dir, &setup.rig_mesh, &frames)?;
     if args.obj {
         write_objs(out_dir, &setup.rig_mesh, &frames)?;
@@ -442,7 +487,11 @@ fn capture_one(
     write_report(out_dir, video, setup, &names, &frames, &sheet, truth.as_ref())?;
     timings.write += t.elapsed().as_secs_f64();
     let elapsed = started.elapsed().as_secs_f64();
-    let reproj: Vec<f64> = frames.iter().map(|f| f.reprojection_px).filter(|x| x.is_finite()).collect();
+    let reproj: Vec<f64> = frames
+        .iter()
+        .map(|f| f.reprojection_px)
+        .filter(|x| x.is_finite())
+        .collect();
     let summary = json!({
         "video": video.display().to_string(),
         "frames": frames.len(),
@@ -526,7 +575,10 @@ fn keyframe_times(frames: &[FrameOut]) -> Vec<f32> {
 fn write_animation(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
     let anim = MorphAnimation {
         times_s: keyframe_times(frames),
-        weights: frames.iter().map(|f| f.weights.iter().map(|&w| w as f32).collect()).collect(),
+        weights: frames
+            .iter()
+            .map(|f| f.weights.iter().map(|&w| w as f32).collect())
+            .collect(),
     };
     facecap_core::gltf_io::write_glb(out_dir.join("animation.glb"), rig, Some(&anim))?;
     Ok(())
@@ -587,10 +639,14 @@ fn write_report(
         let path = dir.join(&name);
         facecap_core::atomic::write_atomic(&path, |w| {
             let mut buf = std::io::Cursor::new(Vec::new());
-            tile.write_to(&mut buf, image::ImageFormat::Png).map_err(std::io::Error::other)?;
+            tile.write_to(&mut buf, image::ImageFormat::Png)
+                .map_err(std::io::Error::other)?;
             w.write_all(buf.get_ref())
         })?;
-        sheets.push((format!("report/{name}"), format!("frame {idx}, t = {:.2} s, confidence {:.2}", f.timestamp, f.confidence)));
+        sheets.push((
+            format!("report/{name}"),
+            format!("frame {idx}, t = {:.2} s, confidence {:.2}", f.timestamp, f.confidence),
+        ));
     }
     let times = frame_times(frames);
     let mut plots = Vec::new();
@@ -603,12 +659,26 @@ fn write_report(
     let weight_series: Vec<(String, Vec<f64>)> = names
         .iter()
         .enumerate()
-        .map(|(k, n)| (n.clone(), frames.iter().map(|f| if f.success { f.weights[k] } else { f64::NAN }).collect()))
+        .map(|(k, n)| {
+            (
+                n.clone(),
+                frames
+                    .iter()
+                    .map(|f| if f.success { f.weights[k] } else { f64::NAN })
+                    .collect(),
+            )
+        })
         .collect();
     // Plot the most active shapes (at most 10 per plot to stay readable).
     let mut order: Vec<usize> = (0..names.len()).collect();
     order.sort_by(|&a, &b| {
-        let m = |k: usize| weight_series[k].1.iter().filter(|x| x.is_finite()).fold(0.0f64, |m, &x| m.max(x));
+        let m = |k: usize| {
+            weight_series[k]
+                .1
+                .iter()
+                .filter(|x| x.is_finite())
+                .fold(0.0f64, |m, &x| m.max(x))
+        };
         m(b).total_cmp(&m(a))
     });
     for (chunk_i, chunk) in order.chunks(10).take(3).enumerate() {
@@ -642,19 +712,31 @@ fn write_report(
         "Tracking confidence and reprojection error",
         vec![
             ("confidence".into(), frames.iter().map(|f| f.confidence).collect()),
-            ("reprojection px / 10".into(), frames.iter().map(|f| f.reprojection_px / 10.0).collect()),
+            (
+                "reprojection px / 10".into(),
+                frames.iter().map(|f| f.reprojection_px / 10.0).collect(),
+            ),
         ],
     )?;
     let mut rows = vec![
         ("video".to_string(), video.display().to_string()),
         ("frames".to_string(), frames.len().to_string()),
-        ("frames with a solved face".to_string(), frames.iter().filter(|f| f.success).count().to_string()),
+        (
+            "frames with a solved face".to_string(),
+            frames.iter().filter(|f| f.success).count().to_string(),
+        ),
         ("rig".to_string(), setup.rig_name.clone()),
         ("solver".to_string(), setup.method.name().to_string()),
     ];
     if let Some(t) = truth {
         rows.push(("error against ground truth".to_string(), t.to_string()));
     }
-    report::write_report_html(out_dir, &format!("facecap capture: {}", video_stem(video)), &rows, &sheets, &plots)?;
+    report::write_report_html(
+        out_dir,
+        &format!("facecap capture: {}", video_stem(video)),
+        &rows,
+        &sheets,
+        &plots,
+    )?;
     Ok(())
 }

@@ -72,11 +72,15 @@ pub fn detect_landmarks(gray: &GrayImage) -> anyhow::Result<Option<Landmarks68>>
     let faces = detector.detect(gray, &mut dws)?;
     let Some(face) = faces.first() else { return Ok(None) };
     let model = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
-        anyhow::anyhow!("{} not in the model cache: run scripts/setup.sh", facecap_core::paths::DLIB_68_MODEL)
+        anyhow::anyhow!(
+            "{} not in the model cache: run scripts/setup.sh",
+            facecap_core::paths::DLIB_68_MODEL
+        )
     })?;
-    let ert = facecap_landmarks::ert::ShapePredictor::from_file(&model)?.with_params(
-        facecap_landmarks::ert::ErtParams { output: facecap_landmarks::ert::OutputPrecision::SubPixel },
-    );
+    let ert =
+        facecap_landmarks::ert::ShapePredictor::from_file(&model)?.with_params(facecap_landmarks::ert::ErtParams {
+            output: facecap_landmarks::ert::OutputPrecision::SubPixel,
+        });
     let mut ws = ert.new_workspace();
     let mut pts = vec![Point2::origin(); ert.num_parts()];
     ert.predict_into(gray, &face.rect, &mut ws, &mut pts)?;
@@ -89,7 +93,10 @@ pub fn truth_weights(frame: u32, fps: u32, seed: u64) -> Vec<f64> {
     let t = frame as f64 / fps as f64;
     let phase = |k: u64| ((seed.wrapping_mul(2654435761).wrapping_add(k * 40503)) % 1000) as f64 / 1000.0;
     let bump = |period: f64, k: u64, amp: f64| {
-        amp * (2.0 * std::f64::consts::PI * (t / period + phase(k))).sin().max(0.0).powf(1.5)
+        amp * (2.0 * std::f64::consts::PI * (t / period + phase(k)))
+            .sin()
+            .max(0.0)
+            .powf(1.5)
     };
     let mut w = vec![0.0; DEFAULT_SHAPES.len()];
     for (i, name) in DEFAULT_SHAPES.iter().enumerate() {
@@ -177,8 +184,10 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
     let neutral = rig_points(&vec![0.0; rig.targets.len()], &rig);
     let (pose0, _) = solve_pnp(&neutral, &lms.points, &k, None, &PnpParams::default())?;
     let centre = neutral.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / neutral.len() as f64;
-    let base_proj: Vec<Point2<f64>> =
-        neutral.iter().map(|p| pose0.project(&k, p).unwrap_or(Point2::new(f64::NAN, f64::NAN))).collect();
+    let base_proj: Vec<Point2<f64>> = neutral
+        .iter()
+        .map(|p| pose0.project(&k, p).unwrap_or(Point2::new(f64::NAN, f64::NAN)))
+        .collect();
 
     // Anchors: an ellipse around the face and the image border stay fixed.
     let bb = lms.bounding_box();
@@ -187,10 +196,22 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
     const ELLIPSE_ANCHORS: usize = 16;
     for a in 0..ELLIPSE_ANCHORS {
         let th = a as f64 / ELLIPSE_ANCHORS as f64 * std::f64::consts::TAU;
-        src_pts.push((cx + 0.95 * bb.width * th.cos(), cy - 0.1 * bb.height + 1.0 * bb.height * th.sin()));
+        src_pts.push((
+            cx + 0.95 * bb.width * th.cos(),
+            cy - 0.1 * bb.height + 1.0 * bb.height * th.sin(),
+        ));
     }
     let (w, h) = (rgb.width() as f64 - 1.0, rgb.height() as f64 - 1.0);
-    src_pts.extend_from_slice(&[(0.0, 0.0), (w / 2.0, 0.0), (w, 0.0), (w, h / 2.0), (w, h), (w / 2.0, h), (0.0, h), (0.0, h / 2.0)]);
+    src_pts.extend_from_slice(&[
+        (0.0, 0.0),
+        (w / 2.0, 0.0),
+        (w, 0.0),
+        (w, h / 2.0),
+        (w, h),
+        (w / 2.0, h),
+        (0.0, h),
+        (0.0, h / 2.0),
+    ]);
     let tris = crate::default_rig::delaunay(&src_pts);
 
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -213,7 +234,10 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
             let moved = Point3::from(r_delta * (pts[i].coords - centre) + centre);
             let p = ModelToCamera::project(&pose0, &k, &moved)
                 .ok_or_else(|| anyhow::anyhow!("synthetic head left the camera's view at frame {f}"))?;
-            dst[i] = (lms.points[i].x + p.x - base_proj[i].x, lms.points[i].y + p.y - base_proj[i].y);
+            dst[i] = (
+                lms.points[i].x + p.x - base_proj[i].x,
+                lms.points[i].y + p.y - base_proj[i].y,
+            );
             values[i] = dst[i].0;
             values[NUM_LANDMARKS + i] = dst[i].1;
         }

@@ -162,8 +162,10 @@ fn run_build(a: BuildArgs) -> anyhow::Result<std::process::ExitCode> {
     let data = if let Some(dir) = &a.meshes {
         DataTensor::from_mesh_folder(dir)?
     } else if let (Some(idr), Some(exr)) = (&a.identity_rig, &a.expression_rig) {
-        let id_rig = facecap_core::gltf_io::read_morph_mesh(idr).with_context(|| format!("reading {}", idr.display()))?;
-        let ex_rig = facecap_core::gltf_io::read_morph_mesh(exr).with_context(|| format!("reading {}", exr.display()))?;
+        let id_rig =
+            facecap_core::gltf_io::read_morph_mesh(idr).with_context(|| format!("reading {}", idr.display()))?;
+        let ex_rig =
+            facecap_core::gltf_io::read_morph_mesh(exr).with_context(|| format!("reading {}", exr.display()))?;
         let s = RigSampling {
             identities: a.identities,
             seed: a.seed,
@@ -219,7 +221,11 @@ fn run_generate(a: GenerateArgs) -> anyhow::Result<std::process::ExitCode> {
 }
 
 fn write_mesh(model: &TensorModel, w_id: &[f64], w_exp: &[f64], out: &Path) -> anyhow::Result<()> {
-    let ext = out.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     match ext.as_str() {
         "obj" => {
             let pts = model.generate_points(w_id, w_exp)?;
@@ -285,7 +291,10 @@ fn fit_video(video: &Path, landmarks: Option<&Path>, o: &FitOptions, model: &Ten
     map.validate(model.num_vertices())?;
     let pairs: Vec<(usize, u32)> = map.mapped().filter(|(i, _)| o.use_jaw || *i > 16).collect();
     if pairs.len() < 6 {
-        bail!("the landmark map maps only {} usable landmarks (need >= 6)", pairs.len());
+        bail!(
+            "the landmark map maps only {} usable landmarks (need >= 6)",
+            pairs.len()
+        );
     }
     let vertices: Vec<u32> = pairs.iter().map(|p| p.1).collect();
     let (w, h) = frame_size(video)?;
@@ -453,8 +462,20 @@ pub fn run_transfer(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let src = fit_video(&a.source, a.source_landmarks.as_deref(), &a.fit, &model)?;
     let tgt = fit_video(&a.target, a.target_landmarks.as_deref(), &a.fit, &model)?;
-    write_tensor_csv(&a.out.join("source_tensor.csv"), &model, &src.records, &src.states, &src.rms)?;
-    write_tensor_csv(&a.out.join("target_tensor.csv"), &model, &tgt.records, &tgt.states, &tgt.rms)?;
+    write_tensor_csv(
+        &a.out.join("source_tensor.csv"),
+        &model,
+        &src.records,
+        &src.states,
+        &src.rms,
+    )?;
+    write_tensor_csv(
+        &a.out.join("target_tensor.csv"),
+        &model,
+        &tgt.records,
+        &tgt.states,
+        &tgt.rms,
+    )?;
     // Carry the last good state over failed frames so every frame has weights.
     let fill = |states: &[Option<FitState>]| -> anyhow::Result<Vec<FitState>> {
         let first = states.iter().flatten().next().cloned().context("no fitted frame")?;
@@ -485,7 +506,10 @@ pub fn run_transfer(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
         times.push(*t);
         weights.push(f.w_exp.iter().map(|&w| w as f32).collect());
     }
-    let anim = facecap_core::gltf_io::MorphAnimation { times_s: times, weights };
+    let anim = facecap_core::gltf_io::MorphAnimation {
+        times_s: times,
+        weights,
+    };
     facecap_core::gltf_io::write_glb(a.out.join("transfer.glb"), &rig, Some(&anim))?;
     // Parameters CSV: target pose, target identity, source expression.
     let tstates: Vec<Option<FitState>> = frames

@@ -5,6 +5,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod capture_extras;
 mod cmd_capture;
 mod cmd_info;
 mod cmd_landmarks;
@@ -14,12 +15,11 @@ mod cmd_solve;
 mod cmd_synth;
 mod cmd_tensor;
 mod default_rig;
-mod report;
-mod warp;
-mod capture_extras;
 mod livelink;
 mod progress;
+mod report;
 mod truth;
+mod warp;
 
 /// Markerless facial performance capture from monocular video.
 #[derive(Debug, Parser)]

@@ -44,7 +44,10 @@ impl Progress {
 
     /// A bar for one video (`len` frames when known).
     pub fn bar(&self, video: &Path, len: Option<u64>) -> Bar {
-        let name = video.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = video
+            .file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
         let bar = self.multi.as_ref().map(|m| {
             let b = m.add(len.map_or_else(ProgressBar::no_length, ProgressBar::new));
             let style = ProgressStyle::with_template("{prefix:>20} [{bar:30}] {pos}/{len} frames {per_sec} eta {eta}")
@@ -57,7 +60,12 @@ impl Progress {
         if !self.quiet && bar.is_none() {
             eprintln!("start {name}");
         }
-        Bar { bar, name, log: !self.quiet && self.multi.is_none(), count: 0 }
+        Bar {
+            bar,
+            name,
+            log: !self.quiet && self.multi.is_none(),
+            count: 0,
+        }
     }
 }
 

@@ -39,8 +39,10 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
     let (mut lm_sum, mut nme_sum, mut lm_n) = (0.0, 0.0, 0usize);
     for (t, e) in truth_lms.iter().zip(est) {
         if let (Some(tl), Some(el)) = (&t.landmarks, &e.landmarks) {
-            let mean: f64 =
-                (0..NUM_LANDMARKS).map(|i| (tl.points[i] - el.points[i]).norm()).sum::<f64>() / NUM_LANDMARKS as f64;
+            let mean: f64 = (0..NUM_LANDMARKS)
+                .map(|i| (tl.points[i] - el.points[i]).norm())
+                .sum::<f64>()
+                / NUM_LANDMARKS as f64;
             lm_sum += mean;
             nme_sum += mean / tl.interocular_distance();
             lm_n += 1;
@@ -80,7 +82,13 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
             }
         }
     }
-    let mean = |v: &[f64]| if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 };
+    let mean = |v: &[f64]| {
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
     Ok(Some(json!({
         "truth_file": path.display().to_string(),
         "frames_compared": lm_n,

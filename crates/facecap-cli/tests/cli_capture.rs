@@ -1,0 +1,112 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+//! End-to-end: `facecap synth` makes a ground-truth clip, `facecap capture` runs on it and
+//! on a corrupt file; the good one finishes, the bad one is reported, the exit code says
+//! not all succeeded, and a rerun skips the finished capture.
+
+use std::process::Command;
+
+fn facecap() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_facecap"))
+}
+
+#[test]
+fn help_lists_subcommands() {
+    let out = facecap().arg("--help").output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    for cmd in [
+        "info",
+        "landmarks",
+        "solve",
+        "muscle",
+        "tensor",
+        "transfer",
+        "capture",
+        "synth",
+    ] {
+        assert!(text.contains(cmd), "--help lacks {cmd}: {text}");
+    }
+}
+
+#[test]
+fn synth_then_capture_with_a_bad_video() {
+    let photo = ["data/astronaut.png", "astronaut.png"]
+        .iter()
+        .filter_map(|r| facecap_core_cache().map(|c| c.join(r)))
+        .find(|p| p.is_file());
+    let (Some(photo), true) = (photo, model_present()) else {
+        eprintln!("SKIP: synth_then_capture: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let synth_dir = dir.path().join("synth");
+    let st = facecap()
+        .args(["synth", "--frames", "12", "--out"])
+        .arg(&synth_dir)
+        .arg("--photo")
+        .arg(&photo)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let bad = dir.path().join("broken.mp4");
+    std::fs::write(&bad, b"this is not a video at all").unwrap();
+    let out_dir = dir.path().join("cap");
+    let out = facecap()
+        .args(["capture", "--quiet", "--json", "--solver", "exact3d", "--out"])
+        .arg(&out_dir)
+        .arg(synth_dir.join("synth.y4m"))
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "a failed video must make the exit code non-zero");
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let videos = report["videos"].as_array().unwrap();
+    assert_eq!(videos[0]["status"], "done");
+    assert_eq!(videos[1]["status"], "failed");
+    let done = out_dir.join("synth");
+    for f in [
+        "landmarks.csv",
+        "pose.csv",
+        "weights.csv",
+        "livelink.csv",
+        "animation.glb",
+        "report.html",
+        "summary.json",
+    ] {
+        assert!(done.join(f).is_file(), "missing {f}");
+    }
+    assert!(!out_dir.join("broken").join("summary.json").exists());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(done.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["frames"], 12);
+    let truth = &summary["truth"];
+    assert!(truth["landmark_error_px"].as_f64().unwrap() < 10.0, "{truth}");
+    // No temporary files left behind.
+    for e in std::fs::read_dir(&done).unwrap() {
+        let name = e.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(!name.contains(".tmp-"), "left-over temporary file {name}");
+    }
+    // Rerun: skipped without --force.
+    let out = facecap()
+        .args(["capture", "--quiet", "--json", "--out"])
+        .arg(&out_dir)
+        .arg(synth_dir.join("synth.y4m"))
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["videos"][0]["status"], "skipped");
+}
+
+fn facecap_core_cache() -> Option<std::path::PathBuf> {
+    if let Some(p) = std::env::var_os("FACECAP_CACHE") {
+        return Some(p.into());
+    }
+    std::env::var_os("HOME").map(|h| std::path::PathBuf::from(h).join(".cache").join("facecap"))
+}
+
+fn model_present() -> bool {
+    let Some(c) = facecap_core_cache() else { return false };
+    let models = std::env::var_os("FACECAP_MODELS").map_or(c.join("models"), std::path::PathBuf::from);
+    models.join("shape_predictor_68_face_landmarks.dat").is_file()
+        && models.join("dlib_frontal_face_detector.svm").is_file()
+}
