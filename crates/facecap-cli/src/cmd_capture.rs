@@ -367,6 +367,7 @@ fn capture_one(
     let mut lm_values = [0.0; 2 * NUM_LANDMARKS];
     let mut prev_weights = vec![0.0; names.len()];
     let mut faces_found = 0u64;
+    let nan_weights = vec![f64::NAN; names.len()];
     loop {
         if interrupted.load(Ordering::SeqCst) {
             anyhow::bail!("interrupted at frame {}", frames.len());
@@ -435,7 +436,6 @@ fn capture_one(
             confidence: tracked.confidence,
             values: &pose_values,
         })?;
-        let nan_weights = vec![f64::NAN; names.len()];
         w_csv.write_row(&FrameRow {
             frame: frame.index,
             timestamp: frame.timestamp_s,

@@ -10,7 +10,7 @@
 //! Reference: S. Umeyama, "Least-squares estimation of transformation parameters
 //! between two point patterns", IEEE PAMI 13(4), 1991.
 
-use nalgebra::{Matrix2, Matrix3, Point2, Point3, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix3, Point, Point2, Point3, SMatrix, SVector, Vector2, Vector3};
 
 use crate::error::{Error, Result};
 
@@ -105,22 +105,24 @@ fn check_inputs(n_src: usize, n_dst: usize, weights: Option<&[f64]>, min: usize)
     Ok(())
 }
 
-/// Weighted 2D Umeyama alignment mapping `src` onto `dst`. With `with_scale = false`
-/// the scale is fixed to 1 (rigid). `weights` default to 1.
-///
-/// # Errors
-/// Mismatched lengths, fewer than 2 points, negative/non-finite weights or points,
-/// or a degenerate (all coincident) source set.
-pub fn umeyama2(
-    src: &[Point2<f64>],
-    dst: &[Point2<f64>],
+/// Weighted means, cross-covariance `Sigma = sum w (y - mu_y)(x - mu_x)^T / sum w` and
+/// source variance of two corresponding point sets (the shared part of Umeyama).
+struct Moments<const D: usize> {
+    mx: SVector<f64, D>,
+    my: SVector<f64, D>,
+    cov: SMatrix<f64, D, D>,
+    var_x: f64,
+}
+
+fn weighted_moments<const D: usize>(
+    src: &[Point<f64, D>],
+    dst: &[Point<f64, D>],
     weights: Option<&[f64]>,
-    with_scale: bool,
-) -> Result<Similarity2> {
-    check_inputs(src.len(), dst.len(), weights, 2)?;
+    operation: &'static str,
+) -> Result<Moments<D>> {
     let w = |i: usize| weights.map_or(1.0, |w| w[i]);
     let mut wsum = 0.0;
-    let (mut mx, mut my) = (Vector2::zeros(), Vector2::zeros());
+    let (mut mx, mut my) = (SVector::<f64, D>::zeros(), SVector::<f64, D>::zeros());
     for i in 0..src.len() {
         if !(src[i].coords.iter().chain(dst[i].coords.iter()).all(|v| v.is_finite())) {
             return Err(Error::invalid(
@@ -135,13 +137,13 @@ pub fn umeyama2(
     }
     if wsum <= 0.0 {
         return Err(Error::Numerical {
-            operation: "umeyama2",
+            operation,
             reason: "weights sum to zero".into(),
         });
     }
     mx /= wsum;
     my /= wsum;
-    let mut cov = Matrix2::zeros();
+    let mut cov = SMatrix::<f64, D, D>::zeros();
     let mut var_x = 0.0;
     for i in 0..src.len() {
         let xs = src[i].coords - mx;
@@ -153,10 +155,27 @@ pub fn umeyama2(
     var_x /= wsum;
     if var_x <= f64::EPSILON * (1.0 + mx.norm_squared()) {
         return Err(Error::Numerical {
-            operation: "umeyama2",
+            operation,
             reason: "source points are all coincident".into(),
         });
     }
+    Ok(Moments { mx, my, cov, var_x })
+}
+
+/// Weighted 2D Umeyama alignment mapping `src` onto `dst`. With `with_scale = false`
+/// the scale is fixed to 1 (rigid). `weights` default to 1.
+///
+/// # Errors
+/// Mismatched lengths, fewer than 2 points, negative/non-finite weights or points,
+/// or a degenerate (all coincident) source set.
+pub fn umeyama2(
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    weights: Option<&[f64]>,
+    with_scale: bool,
+) -> Result<Similarity2> {
+    check_inputs(src.len(), dst.len(), weights, 2)?;
+    let Moments { mx, my, cov, var_x } = weighted_moments(src, dst, weights, "umeyama2")?;
     // Closed form in 2D: R is the rotation by atan2(c10 - c01, c00 + c11).
     let a = cov[(0, 0)] + cov[(1, 1)];
     let b = cov[(1, 0)] - cov[(0, 1)];
@@ -185,45 +204,7 @@ pub fn umeyama3(
     with_scale: bool,
 ) -> Result<Similarity3> {
     check_inputs(src.len(), dst.len(), weights, 3)?;
-    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
-    let mut wsum = 0.0;
-    let (mut mx, mut my) = (Vector3::zeros(), Vector3::zeros());
-    for i in 0..src.len() {
-        if !(src[i].coords.iter().chain(dst[i].coords.iter()).all(|v| v.is_finite())) {
-            return Err(Error::invalid(
-                "alignment point",
-                format!("point {i}"),
-                "finite coordinates",
-            ));
-        }
-        wsum += w(i);
-        mx += w(i) * src[i].coords;
-        my += w(i) * dst[i].coords;
-    }
-    if wsum <= 0.0 {
-        return Err(Error::Numerical {
-            operation: "umeyama3",
-            reason: "weights sum to zero".into(),
-        });
-    }
-    mx /= wsum;
-    my /= wsum;
-    let mut cov = Matrix3::zeros();
-    let mut var_x = 0.0;
-    for i in 0..src.len() {
-        let xs = src[i].coords - mx;
-        let ys = dst[i].coords - my;
-        cov += w(i) * ys * xs.transpose();
-        var_x += w(i) * xs.norm_squared();
-    }
-    cov /= wsum;
-    var_x /= wsum;
-    if var_x <= f64::EPSILON * (1.0 + mx.norm_squared()) {
-        return Err(Error::Numerical {
-            operation: "umeyama3",
-            reason: "source points are all coincident".into(),
-        });
-    }
+    let Moments { mx, my, cov, var_x } = weighted_moments(src, dst, weights, "umeyama3")?;
     let svd = cov.svd(true, true);
     let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
         return Err(Error::Numerical {
