@@ -21,13 +21,14 @@
 //! | `max_iterations` | 100 | QP iteration cap | 1-10000 |
 //! | `kkt_tol` | 1e-10 | relative KKT tolerance | (0, 1e-2] |
 
-use facecap_core::landmarks::Landmarks68;
+use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use nalgebra::Point2;
 
-use crate::basis::Basis2d;
+use crate::basis::{flatten_landmarks, Basis2d};
 use crate::error::{check_count, check_range, Result};
 use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
 use crate::solver::{
-    check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason, COORDS,
+    check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason,
 };
 
 /// Relative ridge added to the QP Hessian's diagonal so that shapes invisible at the landmarks
@@ -94,7 +95,10 @@ pub struct ExactWorkspace {
     lo: Vec<f64>,
     hi: Vec<f64>,
     x: Vec<f64>,
-    scratch: Vec<f64>,
+    /// Weights whose posed shape `frame.posed` holds after a solve (`posed_valid`): the next
+    /// frame's first alignment starts from the previous weights and reuses it.
+    posed_w: Vec<f64>,
+    posed_valid: bool,
     qp: QpWorkspace,
 }
 
@@ -141,7 +145,8 @@ impl ExpressionSolver for ExactSolver {
             lo: vec![0.0; n],
             hi: vec![1.0; n],
             x: vec![0.0; n],
-            scratch: vec![0.0; COORDS],
+            posed_w: vec![0.0; n],
+            posed_valid: false,
             qp: QpWorkspace::new(n),
         }
     }
@@ -165,27 +170,56 @@ impl ExpressionSolver for ExactSolver {
         };
         let mut inner = 0;
         let mut converged = true;
-        for _pass in 0..self.params.alignments {
-            m.prepare(input, &ws.x, &mut ws.frame)?;
-            let s2 = ws.frame.sim.scale * ws.frame.sim.scale;
+        let (mut s2, mut bb, mut q) = (1.0, 0.0, 0.0);
+        flatten_landmarks(input, &mut ws.frame.obs);
+        if !(ws.posed_valid && ws.posed_w == state.weights) {
+            m.pose(&ws.x, &mut ws.frame.posed);
+        }
+        for pass in 0..self.params.alignments {
+            if pass > 0 {
+                m.pose(&ws.x, &mut ws.frame.posed);
+            }
+            ws.posed_valid = false;
+            m.align_posed(&mut ws.frame)?;
+            s2 = ws.frame.sim.scale * ws.frame.sim.scale;
             m.dtb(&ws.frame.target, &mut ws.dtb);
+            bb = ws.frame.target.iter().map(|v| v * v).sum::<f64>();
+            let diag = 2.0 * mu + self.ridge * s2;
             for i in 0..n {
-                for j in 0..n {
-                    ws.h[i * n + j] = 2.0 * s2 * m.gram[i * n + j];
+                let (hr, gr) = (&mut ws.h[i * n..(i + 1) * n], &m.gram[i * n..(i + 1) * n]);
+                for (a, b) in hr.iter_mut().zip(gr) {
+                    *a = 2.0 * s2 * b;
                 }
-                ws.h[i * n + i] += 2.0 * mu + self.ridge * s2;
+                hr[i] += diag;
                 ws.g[i] = 2.0 * s2 * ws.dtb[i] + 2.0 * mu * state.weights[i] - obj.l1;
             }
             let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.x, &opts, &mut ws.qp);
             inner += o.iterations;
             converged = o.converged;
+            q = o.cost;
         }
-        let prev = if mu > 0.0 { Some(state.weights.as_slice()) } else { None };
-        let cost = m.cost(&ws.x, &ws.frame, obj, prev, &mut ws.scratch);
+        // f = q - (ridge s^2 / 2) |x|^2 + s^2 b'^T b' + mu |e_prev|^2  (module docs), O(n)
+        let (mut xx, mut pp) = (0.0, 0.0);
+        for (x, p) in ws.x.iter().zip(&state.weights) {
+            xx += x * x;
+            pp += p * p;
+        }
+        let cost = q - 0.5 * self.ridge * s2 * xx + s2 * bb + mu * pp;
+        m.pose(&ws.x, &mut ws.frame.posed);
+        let sim = ws.frame.sim;
+        for l in 0..NUM_LANDMARKS {
+            out.fitted[l] = if m.mapped[l] {
+                let (x, y) = sim.apply(ws.frame.posed[2 * l], ws.frame.posed[2 * l + 1]);
+                Point2::new(x, y)
+            } else {
+                Point2::new(f64::NAN, f64::NAN)
+            };
+        }
+        ws.posed_w.copy_from_slice(&ws.x);
+        ws.posed_valid = true;
         out.weights.copy_from_slice(&ws.x);
-        out.similarity = Some(ws.frame.sim);
+        out.similarity = Some(sim);
         out.pose = None;
-        m.fitted(&ws.x, &ws.frame.sim, &mut ws.scratch, &mut out.fitted);
         state.weights.copy_from_slice(&ws.x);
         state.has_previous = true;
         Ok(Report {

@@ -198,9 +198,248 @@ fn coordinate_sweep(h: &[f64], x: &mut [f64], grad: &mut [f64], lo: &[f64], hi: 
 /// Solves the box QP in the module docs exactly, starting from `x` (warm start; clamped into the
 /// box first) and overwriting it with the solution.
 ///
+/// Runs the primal active-set method ([`active_set`], warm-started from the bounds active at
+/// `x`); should it stop without a certificate (singular reduced Hessian, iteration cap) the
+/// projected-Newton method continues from its (feasible, never worse) point.
+///
 /// Inputs are trusted (checked with `debug_assert!`): `h.len() == n*n`, `g`, `lo`, `hi` of length
 /// `n`, `lo <= hi`, `H` symmetric PSD. Callers in this crate build them from validated models.
 pub fn solve_box_qp(
+    h: &[f64],
+    g: &[f64],
+    lo: &[f64],
+    hi: &[f64],
+    x: &mut [f64],
+    opts: &QpOptions,
+    ws: &mut QpWorkspace,
+) -> QpOutcome {
+    let o = active_set(h, g, lo, hi, x, opts, ws);
+    if o.converged {
+        return o;
+    }
+    let mut p = projected_newton(h, g, lo, hi, x, opts, ws);
+    p.iterations += o.iterations;
+    p
+}
+
+/// Appends variable `i` as the last free variable: extends the Cholesky factor `L` of `H_FF`
+/// (row-major, stride `n`) by one row, `O(m^2)`. False when `H_FF` would not be numerically
+/// positive definite (nothing is changed then).
+fn chol_append(h: &[f64], n: usize, free: &mut Vec<usize>, l: &mut [f64], i: usize) -> bool {
+    let m = free.len();
+    let mut d2 = h[i * n + i];
+    for a in 0..m {
+        let row = &l[a * n..a * n + a];
+        let mut s = h[free[a] * n + i];
+        for (b, lab) in row.iter().enumerate() {
+            s -= lab * l[m * n + b];
+        }
+        let v = s / l[a * n + a];
+        l[m * n + a] = v;
+        d2 -= v * v;
+    }
+    if !(d2 > 1e-14 * h[i * n + i].abs()) || !d2.is_finite() {
+        return false;
+    }
+    l[m * n + m] = d2.sqrt();
+    free.push(i);
+    true
+}
+
+/// Removes the free variable at position `k` from the factor (row deletion followed by Givens
+/// rotations that restore the triangle), `O(m^2)`.
+fn chol_delete(n: usize, free: &mut Vec<usize>, l: &mut [f64], k: usize) {
+    let m = free.len();
+    for a in k + 1..m {
+        for b in 0..=a {
+            l[(a - 1) * n + b] = l[a * n + b];
+        }
+    }
+    // rows k..m-1 (new numbering) now reach one column past the diagonal
+    for j in k..m - 1 {
+        let (a, b) = (l[j * n + j], l[j * n + j + 1]);
+        let r = a.hypot(b);
+        if r == 0.0 {
+            continue;
+        }
+        let (c, s) = (a / r, b / r);
+        l[j * n + j] = r;
+        l[j * n + j + 1] = 0.0;
+        for i in j + 1..m - 1 {
+            let (u, v) = (l[i * n + j], l[i * n + j + 1]);
+            l[i * n + j] = c * u + s * v;
+            l[i * n + j + 1] = c * v - s * u;
+        }
+    }
+    free.remove(k);
+}
+
+/// Solves `L L^T y = b` in place for the leading `m x m` block of a stride-`n` factor.
+fn chol_solve_strided(l: &[f64], n: usize, m: usize, b: &mut [f64]) {
+    for i in 0..m {
+        let row = &l[i * n..i * n + i];
+        let s: f64 = row.iter().zip(&b[..i]).map(|(a, c)| a * c).sum();
+        b[i] = (b[i] - s) / l[i * n + i];
+    }
+    for i in (0..m).rev() {
+        let mut s = b[i];
+        for k in i + 1..m {
+            s -= l[k * n + i] * b[k];
+        }
+        b[i] = s / l[i * n + i];
+    }
+}
+
+/// Primal active-set method for the box QP (Nocedal & Wright 2006, Algorithm 16.3, specialised
+/// to bounds; the bounded-variable least-squares scheme of Stark & Parker 1995).
+///
+/// The working set starts as the bounds active at the (clamped) warm start `x`, so a warm start
+/// from the previous frame's solution usually needs no or very few working-set changes. Each
+/// iteration solves the equality-constrained problem on the free set `F` with the Cholesky factor
+/// of `H_FF`, kept up to date by one-row appends and Givens deletions (`O(m^2)` per change
+/// instead of refactorising). A step that would leave the box stops at the first bound, which is
+/// added to the working set; at a subspace minimiser the bound with the most wrongly signed
+/// multiplier is released, one at a time. Terminates in finitely many steps for positive definite
+/// `H`; the returned point satisfies the KKT conditions to rounding. Returns `converged = false`
+/// (with a feasible `x` no worse than the start) when the reduced Hessian is numerically singular
+/// or `4 * max_iterations + 2 n` working-set changes did not suffice.
+pub fn active_set(
+    h: &[f64],
+    g: &[f64],
+    lo: &[f64],
+    hi: &[f64],
+    x: &mut [f64],
+    opts: &QpOptions,
+    ws: &mut QpWorkspace,
+) -> QpOutcome {
+    let n = x.len();
+    debug_assert_eq!(h.len(), n * n);
+    debug_assert_eq!(g.len(), n);
+    debug_assert!(lo.len() == n && hi.len() == n);
+    ws.reserve(n);
+    let mut scale = 1.0f64;
+    for i in 0..n {
+        x[i] = x[i].clamp(lo[i], hi[i]);
+        scale = scale.max(g[i].abs()).max(h[i * n + i].abs());
+    }
+    let tol = opts.kkt_tol * scale;
+    let QpWorkspace {
+        grad,
+        dir: xb,
+        rhs,
+        free,
+        chol: l,
+        ..
+    } = ws;
+    let (grad, xb, rhs) = (&mut grad[..n], &mut xb[..n], &mut rhs[..n]);
+    let fail = |x: &[f64], grad: &mut [f64], iterations: usize| {
+        gradient(h, g, x, grad);
+        let viol = kkt_violation(x, grad, lo, hi);
+        QpOutcome {
+            iterations,
+            cost: 0.5 * x.iter().zip(grad.iter()).map(|(a, b)| a * b).sum::<f64>()
+                - 0.5 * x.iter().zip(g).map(|(a, b)| a * b).sum::<f64>(),
+            converged: false,
+            kkt_violation: viol,
+        }
+    };
+    free.clear();
+    for i in 0..n {
+        if x[i] > lo[i] && x[i] < hi[i] && !chol_append(h, n, free, l, i) {
+            return fail(x, grad, 0);
+        }
+    }
+    let cap = 4 * opts.max_iterations + 2 * n;
+    let mut changes = 0;
+    loop {
+        let m = free.len();
+        if m > 0 {
+            // rhs_F = g_F - H_FB x_B
+            xb.copy_from_slice(x);
+            for &i in free.iter() {
+                xb[i] = 0.0;
+            }
+            for (a, &i) in free.iter().enumerate() {
+                let row = &h[i * n..(i + 1) * n];
+                rhs[a] = g[i] - row.iter().zip(xb.iter()).map(|(p, q)| p * q).sum::<f64>();
+            }
+            chol_solve_strided(l, n, m, &mut rhs[..m]);
+            let mut alpha = 1.0f64;
+            let mut block: Option<(usize, f64)> = None;
+            for (a, &i) in free.iter().enumerate() {
+                let (y, xi) = (rhs[a], x[i]);
+                if y < lo[i] {
+                    let t = (lo[i] - xi) / (y - xi);
+                    if t < alpha {
+                        alpha = t;
+                        block = Some((a, lo[i]));
+                    }
+                } else if y > hi[i] {
+                    let t = (hi[i] - xi) / (y - xi);
+                    if t < alpha {
+                        alpha = t;
+                        block = Some((a, hi[i]));
+                    }
+                }
+            }
+            if let Some((k, bound)) = block {
+                let alpha = alpha.max(0.0);
+                for (a, &i) in free.iter().enumerate() {
+                    x[i] = (x[i] + alpha * (rhs[a] - x[i])).clamp(lo[i], hi[i]);
+                }
+                x[free[k]] = bound;
+                chol_delete(n, free, l, k);
+                changes += 1;
+                if changes > cap {
+                    return fail(x, grad, changes);
+                }
+                continue;
+            }
+            for (a, &i) in free.iter().enumerate() {
+                x[i] = rhs[a];
+            }
+        }
+        // multipliers of the working set: release the most wrongly signed one
+        let mut worst = tol;
+        let mut release = None;
+        for j in 0..n {
+            let at_lo = x[j] <= lo[j];
+            let at_hi = x[j] >= hi[j];
+            if !(at_lo || at_hi) || (at_lo && at_hi) {
+                continue;
+            }
+            let row = &h[j * n..(j + 1) * n];
+            let gj = row.iter().zip(x.iter()).map(|(p, q)| p * q).sum::<f64>() - g[j];
+            let v = if at_lo { -gj } else { gj };
+            if v > worst {
+                worst = v;
+                release = Some(j);
+            }
+        }
+        let Some(j) = release else {
+            break;
+        };
+        if !chol_append(h, n, free, l, j) {
+            return fail(x, grad, changes);
+        }
+        changes += 1;
+        if changes > cap {
+            return fail(x, grad, changes);
+        }
+    }
+    gradient(h, g, x, grad);
+    let viol = kkt_violation(x, grad, lo, hi);
+    QpOutcome {
+        iterations: changes,
+        cost: 0.5 * x.iter().zip(grad.iter()).map(|(a, b)| a * b).sum::<f64>()
+            - 0.5 * x.iter().zip(g).map(|(a, b)| a * b).sum::<f64>(),
+        converged: viol <= tol,
+        kkt_violation: viol,
+    }
+}
+
+/// Projected Newton (module docs): the fallback of [`solve_box_qp`].
+pub fn projected_newton(
     h: &[f64],
     g: &[f64],
     lo: &[f64],

@@ -1,7 +1,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The exact box-QP solver against the slow enumerating reference, on seeded random problems.
 
-use facecap_solve::qp::{qp_cost, reference_box_qp, solve_box_qp, QpOptions, QpWorkspace};
+use facecap_solve::qp::{
+    active_set, projected_newton, qp_cost, reference_box_qp, solve_box_qp, QpOptions, QpWorkspace,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -80,4 +82,61 @@ fn warm_start_from_optimum_takes_no_iteration() {
     let o = solve_box_qp(&h, &g, &lo, &hi, &mut x, &QpOptions::default(), &mut ws);
     assert_eq!(o.iterations, 0);
     assert!(o.converged);
+}
+
+#[test]
+fn active_set_alone_converges_and_matches_reference() {
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let mut ws = QpWorkspace::new(8);
+    for trial in 0..300 {
+        let n = rng.random_range(1..=7);
+        let rows = rng.random_range(n..n + 6);
+        let (h, g) = random_problem(&mut rng, n, rows);
+        let (lo, hi) = (vec![0.0; n], vec![1.0; n]);
+        let reference = reference_box_qp(&h, &g, &lo, &hi).expect("reference finds a KKT point");
+        let mut x: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+        if trial % 3 == 0 {
+            x.fill(0.0); // cold start at a vertex
+        }
+        let o = active_set(&h, &g, &lo, &hi, &mut x, &QpOptions::default(), &mut ws);
+        assert!(o.converged, "trial {trial}: active set did not converge {o:?}");
+        assert!((o.cost - qp_cost(&h, &g, &x)).abs() < 1e-9 * (1.0 + o.cost.abs()));
+        for (a, b) in x.iter().zip(&reference) {
+            assert!(
+                (a - b).abs() < 1e-6,
+                "trial {trial}: x {x:?} vs reference {reference:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn active_set_agrees_with_projected_newton_on_blendshape_sizes() {
+    // n = 16 and 53 as the solvers use, ill-conditioned Gram-like H, cold and warm starts
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for &n in &[16usize, 53] {
+        let mut ws = QpWorkspace::new(n);
+        for trial in 0..20 {
+            let (mut h, g0) = random_problem(&mut rng, n, 136);
+            for v in h.iter_mut() {
+                *v *= 50.0;
+            }
+            let g: Vec<f64> = g0.iter().map(|v| 40.0 * v).collect();
+            let (lo, hi) = (vec![0.0; n], vec![1.0; n]);
+            let mut xa: Vec<f64> = if trial % 2 == 0 {
+                vec![0.0; n]
+            } else {
+                (0..n).map(|_| rng.random_range(0.0..1.0)).collect()
+            };
+            let mut xp = xa.clone();
+            let oa = active_set(&h, &g, &lo, &hi, &mut xa, &QpOptions::default(), &mut ws);
+            let op = projected_newton(&h, &g, &lo, &hi, &mut xp, &QpOptions::default(), &mut ws);
+            assert!(oa.converged && op.converged, "n {n} trial {trial}: {oa:?} {op:?}");
+            let (ca, cp) = (qp_cost(&h, &g, &xa), qp_cost(&h, &g, &xp));
+            assert!(ca <= cp + 1e-9 * (1.0 + cp.abs()), "n {n} trial {trial}: {ca} > {cp}");
+            for (a, b) in xa.iter().zip(&xp) {
+                assert!((a - b).abs() < 1e-6, "n {n} trial {trial}");
+            }
+        }
+    }
 }
