@@ -26,7 +26,7 @@ use nalgebra::Point2;
 
 use crate::basis::{flatten_landmarks, Basis2d};
 use crate::error::{check_count, check_range, Result};
-use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
+use crate::qp::{solve_box_qp_reuse, QpOptions, QpWorkspace};
 use crate::solver::{
     check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason,
 };
@@ -83,7 +83,11 @@ pub struct ExactSolver {
     pub(crate) model: Model2d,
     params: ExactParams,
     ridge: f64,
+    /// Identifies the Gram matrix for the QP factor reuse (clones share it, and their matrix).
+    id: u64,
 }
+
+static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// Scratch buffers of [`ExactSolver`].
 #[derive(Debug, Clone)]
@@ -99,6 +103,8 @@ pub struct ExactWorkspace {
     /// frame's first alignment starts from the previous weights and reuses it.
     posed_w: Vec<f64>,
     posed_valid: bool,
+    /// `(solver id, s^2)` of the last QP solved with `mu = 0`, whose factor `qp` keeps.
+    qp_last: Option<(u64, f64)>,
     qp: QpWorkspace,
 }
 
@@ -115,6 +121,7 @@ impl ExactSolver {
             ridge: RIDGE_REL * maxdiag.max(1e-300),
             model,
             params,
+            id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         })
     }
 
@@ -147,6 +154,7 @@ impl ExpressionSolver for ExactSolver {
             x: vec![0.0; n],
             posed_w: vec![0.0; n],
             posed_valid: false,
+            qp_last: None,
             qp: QpWorkspace::new(n),
         }
     }
@@ -193,7 +201,13 @@ impl ExpressionSolver for ExactSolver {
                 hr[i] += diag;
                 ws.g[i] = 2.0 * s2 * ws.dtb[i] + 2.0 * mu * state.weights[i] - obj.l1;
             }
-            let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.x, &opts, &mut ws.qp);
+            // with mu = 0, H = s^2 (2 G + ridge I): the previous factor is reusable, scaled
+            let reuse = match ws.qp_last {
+                Some((id, prev_s2)) if mu == 0.0 && id == self.id => Some(s2 / prev_s2),
+                _ => None,
+            };
+            let o = solve_box_qp_reuse(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.x, &opts, &mut ws.qp, reuse);
+            ws.qp_last = if mu == 0.0 { Some((self.id, s2)) } else { None };
             inner += o.iterations;
             converged = o.converged;
             q = o.cost;

@@ -70,6 +70,12 @@ pub struct QpWorkspace {
     free: Vec<usize>,
     chol: Vec<f64>,
     rhs: Vec<f64>,
+    mark: Vec<bool>,
+    /// `chol` holds the factor of `H_FF` for `free` of the last [`active_set`] call on `n`
+    /// variables (`factor_n`), reusable by [`solve_box_qp_reuse`].
+    factor_valid: bool,
+    factor_n: usize,
+    reuses: usize,
 }
 
 impl QpWorkspace {
@@ -91,6 +97,9 @@ impl QpWorkspace {
             if v.len() != n {
                 v.resize(n, 0.0);
             }
+        }
+        if self.mark.len() != n {
+            self.mark.resize(n, false);
         }
         if self.free.capacity() < n {
             self.free.reserve(n - self.free.len());
@@ -128,11 +137,16 @@ fn kkt_violation(x: &[f64], grad: &[f64], lo: &[f64], hi: &[f64]) -> f64 {
     v
 }
 
+/// `grad = H x - g` (`H` symmetric: accumulated over the rows of the non-zero `x_j`).
 fn gradient(h: &[f64], g: &[f64], x: &[f64], grad: &mut [f64]) {
     let n = x.len();
-    for i in 0..n {
-        let row = &h[i * n..(i + 1) * n];
-        grad[i] = row.iter().zip(x).map(|(a, b)| a * b).sum::<f64>() - g[i];
+    for (gi, b) in grad.iter_mut().zip(g) {
+        *gi = -b;
+    }
+    for j in 0..n {
+        if x[j] != 0.0 {
+            axpy(x[j], &h[j * n..(j + 1) * n], grad);
+        }
     }
 }
 
@@ -213,10 +227,37 @@ pub fn solve_box_qp(
     opts: &QpOptions,
     ws: &mut QpWorkspace,
 ) -> QpOutcome {
-    let o = active_set(h, g, lo, hi, x, opts, ws);
+    solve_box_qp_reuse(h, g, lo, hi, x, opts, ws, None)
+}
+
+/// Refactorise from scratch after this many consecutive factor reuses (bounds the drift of the
+/// updated factor).
+const MAX_REUSES: usize = 64;
+
+/// [`solve_box_qp`] that may keep the previous call's Cholesky factor and working set.
+///
+/// `reuse = Some(c)` is the caller's promise that `H = c * H_prev`, with `H_prev` the Hessian of
+/// the previous call on this workspace (same `n`) and `c > 0`; the factor of the previous final
+/// free set is then scaled by `sqrt(c)` (`O(m^2)`) instead of recomputed (`O(m^3)`), and the
+/// previous free set is the starting working set. It is ignored (full refactorisation) when the
+/// workspace holds no such factor, when a variable outside the previous free set is not at a
+/// bound of `x`, and after 64 consecutive reuses. The result is the same exact solution.
+#[allow(clippy::too_many_arguments)]
+pub fn solve_box_qp_reuse(
+    h: &[f64],
+    g: &[f64],
+    lo: &[f64],
+    hi: &[f64],
+    x: &mut [f64],
+    opts: &QpOptions,
+    ws: &mut QpWorkspace,
+    reuse: Option<f64>,
+) -> QpOutcome {
+    let o = active_set_reuse(h, g, lo, hi, x, opts, ws, reuse);
     if o.converged {
         return o;
     }
+    ws.factor_valid = false;
     let mut p = projected_newton(h, g, lo, hi, x, opts, ws);
     p.iterations += o.iterations;
     p
@@ -238,7 +279,7 @@ fn chol_append(h: &[f64], n: usize, free: &mut Vec<usize>, l: &mut [f64], i: usi
         l[m * n + a] = v;
         d2 -= v * v;
     }
-    if !(d2 > 1e-14 * h[i * n + i].abs()) || !d2.is_finite() {
+    if !d2.is_finite() || d2 <= 1e-14 * h[i * n + i].abs() {
         return false;
     }
     l[m * n + m] = d2.sqrt();
@@ -281,12 +322,13 @@ fn chol_solve_strided(l: &[f64], n: usize, m: usize, b: &mut [f64]) {
         let s: f64 = row.iter().zip(&b[..i]).map(|(a, c)| a * c).sum();
         b[i] = (b[i] - s) / l[i * n + i];
     }
+    // L^T y = b by rows of L (contiguous): y_i = b_i / L_ii, then b_k -= L_ik y_i for k < i
     for i in (0..m).rev() {
-        let mut s = b[i];
-        for k in i + 1..m {
-            s -= l[k * n + i] * b[k];
+        let yi = b[i] / l[i * n + i];
+        b[i] = yi;
+        for (bk, lik) in b[..i].iter_mut().zip(&l[i * n..i * n + i]) {
+            *bk -= lik * yi;
         }
-        b[i] = s / l[i * n + i];
     }
 }
 
@@ -312,6 +354,21 @@ pub fn active_set(
     opts: &QpOptions,
     ws: &mut QpWorkspace,
 ) -> QpOutcome {
+    active_set_reuse(h, g, lo, hi, x, opts, ws, None)
+}
+
+/// [`active_set`] with the factor reuse of [`solve_box_qp_reuse`].
+#[allow(clippy::too_many_arguments)]
+pub fn active_set_reuse(
+    h: &[f64],
+    g: &[f64],
+    lo: &[f64],
+    hi: &[f64],
+    x: &mut [f64],
+    opts: &QpOptions,
+    ws: &mut QpWorkspace,
+    reuse: Option<f64>,
+) -> QpOutcome {
     let n = x.len();
     debug_assert_eq!(h.len(), n * n);
     debug_assert_eq!(g.len(), n);
@@ -323,45 +380,83 @@ pub fn active_set(
         scale = scale.max(g[i].abs()).max(h[i * n + i].abs());
     }
     let tol = opts.kkt_tol * scale;
+    let mut reuse = reuse.filter(|c| c.is_finite() && *c > 0.0);
+    if !(ws.factor_valid && ws.factor_n == n && ws.reuses < MAX_REUSES) {
+        reuse = None;
+    }
+    ws.factor_valid = false;
     let QpWorkspace {
         grad,
-        dir: xb,
+        dir: u,
         rhs,
         free,
         chol: l,
+        mark,
+        factor_valid,
+        factor_n,
+        reuses,
         ..
     } = ws;
-    let (grad, xb, rhs) = (&mut grad[..n], &mut xb[..n], &mut rhs[..n]);
-    let fail = |x: &[f64], grad: &mut [f64], iterations: usize| {
-        gradient(h, g, x, grad);
-        let viol = kkt_violation(x, grad, lo, hi);
-        QpOutcome {
-            iterations,
-            cost: 0.5 * x.iter().zip(grad.iter()).map(|(a, b)| a * b).sum::<f64>()
-                - 0.5 * x.iter().zip(g).map(|(a, b)| a * b).sum::<f64>(),
-            converged: false,
-            kkt_violation: viol,
+    let (grad, u, rhs, mark) = (&mut grad[..n], &mut u[..n], &mut rhs[..n], &mut mark[..n]);
+    if reuse.is_some() {
+        mark.fill(false);
+        for &i in free.iter() {
+            mark[i] = true;
         }
-    };
-    free.clear();
-    for i in 0..n {
-        if x[i] > lo[i] && x[i] < hi[i] && !chol_append(h, n, free, l, i) {
-            return fail(x, grad, 0);
+        if (0..n).any(|j| !mark[j] && x[j] > lo[j] && x[j] < hi[j]) {
+            reuse = None;
+        }
+    }
+    if let Some(c) = reuse {
+        let r = c.sqrt();
+        for a in 0..free.len() {
+            for v in &mut l[a * n..a * n + a + 1] {
+                *v *= r;
+            }
+        }
+        *reuses += 1;
+    } else {
+        *reuses = 0;
+        // starting working set: the bounds active at x (warm start: the previous solution's)
+        free.clear();
+        for i in 0..n {
+            if x[i] > lo[i] && x[i] < hi[i] && !chol_append(h, n, free, l, i) {
+                return finish(h, g, lo, hi, x, grad, 0, tol, false);
+            }
+        }
+        if free.is_empty() {
+            // a vertex (cold start at 0): release every bound whose multiplier has the wrong
+            // sign at once (the projected-gradient guess); the excess then leaves again through
+            // cheap blocking steps instead of one release, each with a gradient, per variable
+            gradient(h, g, x, grad);
+            for i in 0..n {
+                let (at_lo, at_hi) = (x[i] <= lo[i], x[i] >= hi[i]);
+                let release = !(at_lo && at_hi) && ((at_lo && -grad[i] > tol) || (at_hi && grad[i] > tol));
+                if release && !chol_append(h, n, free, l, i) {
+                    return finish(h, g, lo, hi, x, grad, 0, tol, false);
+                }
+            }
         }
     }
     let cap = 4 * opts.max_iterations + 2 * n;
     let mut changes = 0;
+    // u = H x_B over the fixed variables that are not zero (usually few: those at 1), kept up
+    // to date as variables enter and leave the working set
+    mark.fill(false);
+    for &i in free.iter() {
+        mark[i] = true;
+    }
+    u.fill(0.0);
+    for j in 0..n {
+        if !mark[j] && x[j] != 0.0 {
+            axpy(x[j], &h[j * n..(j + 1) * n], u);
+        }
+    }
     loop {
         let m = free.len();
         if m > 0 {
-            // rhs_F = g_F - H_FB x_B
-            xb.copy_from_slice(x);
-            for &i in free.iter() {
-                xb[i] = 0.0;
-            }
             for (a, &i) in free.iter().enumerate() {
-                let row = &h[i * n..(i + 1) * n];
-                rhs[a] = g[i] - row.iter().zip(xb.iter()).map(|(p, q)| p * q).sum::<f64>();
+                rhs[a] = g[i] - u[i];
             }
             chol_solve_strided(l, n, m, &mut rhs[..m]);
             let mut alpha = 1.0f64;
@@ -387,11 +482,16 @@ pub fn active_set(
                 for (a, &i) in free.iter().enumerate() {
                     x[i] = (x[i] + alpha * (rhs[a] - x[i])).clamp(lo[i], hi[i]);
                 }
-                x[free[k]] = bound;
+                let fixed = free[k];
+                x[fixed] = bound;
+                mark[fixed] = false;
+                if bound != 0.0 {
+                    axpy(bound, &h[fixed * n..(fixed + 1) * n], u);
+                }
                 chol_delete(n, free, l, k);
                 changes += 1;
                 if changes > cap {
-                    return fail(x, grad, changes);
+                    return finish(h, g, lo, hi, x, grad, changes, tol, false);
                 }
                 continue;
             }
@@ -399,18 +499,27 @@ pub fn active_set(
                 x[i] = rhs[a];
             }
         }
-        // multipliers of the working set: release the most wrongly signed one
+        // gradient = H x - g = u + H_{.F} x_F - g, then release the most wrongly signed bound
+        grad.copy_from_slice(u);
+        for &i in free.iter() {
+            if x[i] != 0.0 {
+                axpy(x[i], &h[i * n..(i + 1) * n], grad);
+            }
+        }
+        for (gj, b) in grad.iter_mut().zip(g) {
+            *gj -= b;
+        }
         let mut worst = tol;
         let mut release = None;
         for j in 0..n {
-            let at_lo = x[j] <= lo[j];
-            let at_hi = x[j] >= hi[j];
-            if !(at_lo || at_hi) || (at_lo && at_hi) {
+            if mark[j] {
                 continue;
             }
-            let row = &h[j * n..(j + 1) * n];
-            let gj = row.iter().zip(x.iter()).map(|(p, q)| p * q).sum::<f64>() - g[j];
-            let v = if at_lo { -gj } else { gj };
+            let (at_lo, at_hi) = (x[j] <= lo[j], x[j] >= hi[j]);
+            if at_lo && at_hi {
+                continue;
+            }
+            let v = if at_lo { -grad[j] } else { grad[j] };
             if v > worst {
                 worst = v;
                 release = Some(j);
@@ -420,19 +529,57 @@ pub fn active_set(
             break;
         };
         if !chol_append(h, n, free, l, j) {
-            return fail(x, grad, changes);
+            return finish(h, g, lo, hi, x, grad, changes, tol, false);
+        }
+        mark[j] = true;
+        if x[j] != 0.0 {
+            axpy(-x[j], &h[j * n..(j + 1) * n], u);
         }
         changes += 1;
         if changes > cap {
-            return fail(x, grad, changes);
+            return finish(h, g, lo, hi, x, grad, changes, tol, false);
         }
     }
-    gradient(h, g, x, grad);
+    *factor_valid = true;
+    *factor_n = n;
+    // the certificate uses a freshly computed gradient (u was updated incrementally)
+    finish(h, g, lo, hi, x, grad, changes, tol, false)
+}
+
+/// `y += a x`.
+#[inline]
+fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += a * xi;
+    }
+}
+
+/// The outcome at `x`; `grad_current` says whether `grad` already holds `H x - g`.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    h: &[f64],
+    g: &[f64],
+    lo: &[f64],
+    hi: &[f64],
+    x: &[f64],
+    grad: &mut [f64],
+    iterations: usize,
+    tol: f64,
+    grad_current: bool,
+) -> QpOutcome {
+    if !grad_current {
+        gradient(h, g, x, grad);
+    }
     let viol = kkt_violation(x, grad, lo, hi);
+    let (mut xg, mut xb) = (0.0, 0.0);
+    for i in 0..x.len() {
+        xg += x[i] * grad[i];
+        xb += x[i] * g[i];
+    }
     QpOutcome {
-        iterations: changes,
-        cost: 0.5 * x.iter().zip(grad.iter()).map(|(a, b)| a * b).sum::<f64>()
-            - 0.5 * x.iter().zip(g).map(|(a, b)| a * b).sum::<f64>(),
+        iterations,
+        // q = 1/2 x^T H x - g^T x = 1/2 x^T (H x - g) - 1/2 g^T x
+        cost: 0.5 * xg - 0.5 * xb,
         converged: viol <= tol,
         kkt_violation: viol,
     }
@@ -463,6 +610,7 @@ pub fn projected_newton(
     let tol = opts.kkt_tol * scale;
     const ARMIJO: f64 = 1e-4;
     const MAX_HALVINGS: usize = 40;
+    ws.factor_valid = false;
     let QpWorkspace {
         grad,
         dir,
@@ -471,6 +619,7 @@ pub fn projected_newton(
         free,
         chol,
         rhs,
+        ..
     } = ws;
     let grad = &mut grad[..n];
     gradient(h, g, x, grad);

@@ -2,7 +2,7 @@
 //! The exact box-QP solver against the slow enumerating reference, on seeded random problems.
 
 use facecap_solve::qp::{
-    active_set, projected_newton, qp_cost, reference_box_qp, solve_box_qp, QpOptions, QpWorkspace,
+    active_set, projected_newton, qp_cost, reference_box_qp, solve_box_qp, solve_box_qp_reuse, QpOptions, QpWorkspace,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -137,6 +137,34 @@ fn active_set_agrees_with_projected_newton_on_blendshape_sizes() {
             for (a, b) in xa.iter().zip(&xp) {
                 assert!((a - b).abs() < 1e-6, "n {n} trial {trial}");
             }
+        }
+    }
+}
+
+#[test]
+fn factor_reuse_over_a_sequence_gives_the_same_solutions() {
+    // a tracking-like sequence: H = c_t * H0 (changing scale), g drifting; solved with the
+    // factor kept between calls and from scratch
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let n = 30;
+    let (h0, mut g) = random_problem(&mut rng, n, 136);
+    let (lo, hi) = (vec![0.0; n], vec![1.0; n]);
+    let (mut ws_a, mut ws_b) = (QpWorkspace::new(n), QpWorkspace::new(n));
+    let (mut xa, mut xb) = (vec![0.0; n], vec![0.0; n]);
+    let mut prev_c = 1.0;
+    for t in 0..200 {
+        let c = 1.0 + 0.5 * (0.1 * t as f64).sin();
+        let h: Vec<f64> = h0.iter().map(|v| c * v).collect();
+        for v in g.iter_mut() {
+            *v += rng.random_range(-0.3..0.3);
+        }
+        let reuse = if t == 0 { None } else { Some(c / prev_c) };
+        prev_c = c;
+        let oa = solve_box_qp_reuse(&h, &g, &lo, &hi, &mut xa, &QpOptions::default(), &mut ws_a, reuse);
+        let ob = solve_box_qp(&h, &g, &lo, &hi, &mut xb, &QpOptions::default(), &mut ws_b);
+        assert!(oa.converged && ob.converged, "t {t}: {oa:?} {ob:?}");
+        for (a, b) in xa.iter().zip(&xb) {
+            assert!((a - b).abs() < 1e-8, "t {t}: {a} vs {b}");
         }
     }
 }
