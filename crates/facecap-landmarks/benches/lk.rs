@@ -8,8 +8,6 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use facecap_landmarks::lk::{LkParams, LkWorkspace, PyramidLk, TrackStatus};
 use image::GrayImage;
 use nalgebra::Point2;
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -52,10 +50,23 @@ fn frames() -> Vec<GrayImage> {
         .collect()
 }
 
+/// Radical inverse of `i` in base `b` (Halton sequence).
+fn halton(mut i: usize, b: usize) -> f64 {
+    let (mut f, mut r) = (1.0, 0.0);
+    while i > 0 {
+        f /= b as f64;
+        r += f * (i % b) as f64;
+        i /= b;
+    }
+    r
+}
+
+/// The first `n` points of the 2-D Halton sequence (bases 2, 3) in the face area
+/// x in [150, 490), y in [80, 420): the same points as the OpenCV timing script
+/// `testdata/opencv_lk/bench_cv_lk_same_inputs.py`.
 fn points(n: usize) -> Vec<Point2<f64>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(5);
-    (0..n)
-        .map(|_| Point2::new(rng.random_range(150.0..490.0), rng.random_range(80.0..420.0)))
+    (1..=n)
+        .map(|i| Point2::new(150.0 + 340.0 * halton(i, 2), 80.0 + 340.0 * halton(i, 3)))
         .collect()
 }
 
