@@ -4,13 +4,10 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use facecap_core::camera::Intrinsics;
-use facecap_core::csv::{FrameCsvWriter, FrameRow, LandmarkRecord, POSE_COLUMNS};
-use facecap_core::landmark_map::LandmarkMap;
-use facecap_tensor::fit::{FitInput, FitParams, FitState, Fitter, Method, Projection};
 use facecap_tensor::model::{HosvdParams, TensorModel};
 use facecap_tensor::tensor::{DataTensor, RigSampling};
-use nalgebra::Point2;
+
+use crate::cmd_tensor_fit::{fit_video, print_summary, write_reprojection_csv, write_tensor_csv, FitOptions};
 
 /// Tensor subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -78,75 +75,26 @@ pub struct GenerateArgs {
     pub out: PathBuf,
 }
 
-/// Options shared by `tensor fit` and `transfer`.
-#[derive(Debug, Clone, clap::Args)]
-pub struct FitOptions {
-    /// Model file from `facecap tensor build`.
-    #[arg(long)]
-    pub model: PathBuf,
-    /// iBUG-68 -> model vertex map (JSON, e.g. ict_landmarks68.json).
-    #[arg(long)]
-    pub landmark_map: PathBuf,
-    /// Weight constraint: `regularised` (closed form) or `nnls` (non-negative).
-    #[arg(long, default_value = "regularised")]
-    pub method: String,
-    /// Identity prior weight lambda_id (model units^2).
-    #[arg(long, default_value_t = 1e-2)]
-    pub lambda_id: f64,
-    /// Expression prior weight lambda_exp (model units^2).
-    #[arg(long, default_value_t = 1e-2)]
-    pub lambda_exp: f64,
-    /// Projection of the weight steps: `weak` (thesis, z_avg) or `perspective` (per-point depth).
-    #[arg(long, default_value = "weak")]
-    pub projection: String,
-    /// Focal length in pixels (default: max(width, height)).
-    #[arg(long)]
-    pub focal: Option<f64>,
-    /// Also fit the jaw contour landmarks 0-16 (off: contour points slide along the face).
-    #[arg(long)]
-    pub use_jaw: bool,
-    /// Frames (evenly spaced successful ones) used to fit the shared identity.
-    #[arg(long, default_value_t = 40)]
-    pub identity_frames: usize,
-}
-
 /// Arguments of `facecap tensor fit`.
 #[derive(Debug, clap::Args)]
 pub struct FitArgs {
     /// Input video (or image folder).
     pub video: PathBuf,
-    /// Landmarks CSV of the video (from `facecap landmarks VIDEO --out DIR`).
+    /// Landmarks CSV of the video (from `facecap landmarks VIDEO --out DIR`) instead of
+    /// tracking the video.
     #[arg(long)]
     pub landmarks: Option<PathBuf>,
+    /// Also write the tracked landmarks to OUT/landmarks.csv.
+    #[arg(long)]
+    pub write_landmarks: bool,
     #[command(flatten)]
     pub fit: FitOptions,
-    /// Output folder (tensor.csv).
+    /// Output folder (tensor.csv, reprojection.csv).
     #[arg(long)]
     pub out: PathBuf,
 }
 
-/// Arguments of `facecap transfer`.
-#[derive(Debug, clap::Args)]
-pub struct TransferArgs {
-    /// Source video.
-    pub source: PathBuf,
-    /// Target video.
-    pub target: PathBuf,
-    /// Landmarks CSV of the source video.
-    #[arg(long)]
-    pub source_landmarks: Option<PathBuf>,
-    /// Landmarks CSV of the target video.
-    #[arg(long)]
-    pub target_landmarks: Option<PathBuf>,
-    #[command(flatten)]
-    pub fit: FitOptions,
-    /// Also write one OBJ per frame into OUT/obj/.
-    #[arg(long)]
-    pub obj: bool,
-    /// Output folder (transfer.glb, transfer.csv, source/target tensor CSVs).
-    #[arg(long)]
-    pub out: PathBuf,
-}
+pub use crate::cmd_transfer::TransferArgs;
 
 /// Runs a tensor subcommand.
 pub fn run(cmd: Command) -> anyhow::Result<std::process::ExitCode> {
@@ -244,192 +192,36 @@ fn write_mesh(model: &TensorModel, w_id: &[f64], w_exp: &[f64], out: &Path) -> a
     Ok(())
 }
 
-/// A fitted sequence.
-struct Fitted {
-    records: Vec<LandmarkRecord>,
-    states: Vec<Option<FitState>>,
-    rms: Vec<f64>,
-}
-
-fn fit_params(o: &FitOptions) -> anyhow::Result<FitParams> {
-    let method = match o.method.as_str() {
-        "regularised" | "regularized" => Method::Regularised,
-        "nnls" => Method::NonNegative,
-        m => bail!("--method {m:?}: expected regularised or nnls"),
-    };
-    let projection = match o.projection.as_str() {
-        "weak" => Projection::WeakPerspective,
-        "perspective" => Projection::PerPointDepth,
-        p => bail!("--projection {p:?}: expected weak or perspective"),
-    };
-    Ok(FitParams {
-        lambda_id: o.lambda_id,
-        lambda_exp: o.lambda_exp,
-        method,
-        projection,
-        ..Default::default()
-    })
-}
-
-fn frame_size(video: &Path) -> anyhow::Result<(u32, u32)> {
-    let src = facecap_core::video::open_source(video, &facecap_core::video::SourceOptions::default())
-        .with_context(|| format!("opening {}", video.display()))?;
-    let info = src.info();
-    Ok((info.width, info.height))
-}
-
-fn fit_video(video: &Path, landmarks: Option<&Path>, o: &FitOptions, model: &TensorModel) -> anyhow::Result<Fitted> {
-    let Some(lm_path) = landmarks else {
-        bail!(
-            "{}: pass --landmarks CSV (run `facecap landmarks {} --out DIR` first; the tensor fit reads DIR/landmarks.csv)",
-            video.display(),
-            video.display()
-        );
-    };
-    let records = facecap_core::csv::read_landmarks_csv(lm_path)?;
-    let map = LandmarkMap::from_json_file(&o.landmark_map)?;
-    map.validate(model.num_vertices())?;
-    let pairs: Vec<(usize, u32)> = map.mapped().filter(|(i, _)| o.use_jaw || *i > 16).collect();
-    if pairs.len() < 6 {
-        bail!(
-            "the landmark map maps only {} usable landmarks (need >= 6)",
-            pairs.len()
-        );
+fn run_fit(a: FitArgs) -> anyhow::Result<std::process::ExitCode> {
+    let model = TensorModel::load(&a.fit.model)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let fitted = fit_video(&a.video, a.landmarks.as_deref(), &a.fit, &model)?;
+    let path = a.out.join("tensor.csv");
+    write_tensor_csv(&path, &model, &fitted.records, &fitted.states, &fitted.rms_all)?;
+    write_reprojection_csv(&a.out.join("reprojection.csv"), &fitted)?;
+    if a.write_landmarks {
+        write_landmarks_csv(&a.out.join("landmarks.csv"), &fitted.records)?;
     }
-    let vertices: Vec<u32> = pairs.iter().map(|p| p.1).collect();
-    let (w, h) = frame_size(video)?;
-    let k = match o.focal {
-        Some(f) => Intrinsics::new(f, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0)?,
-        None => Intrinsics::default_for_frame(w, h)?,
-    };
-    let params = fit_params(o)?;
-    let images: Vec<Option<Vec<Point2<f64>>>> = records
-        .iter()
-        .map(|r| {
-            r.landmarks
-                .as_ref()
-                .filter(|_| r.success)
-                .map(|lm| pairs.iter().map(|(i, _)| lm.points[*i]).collect())
-        })
-        .collect();
-    let good: Vec<usize> = (0..images.len()).filter(|&f| images[f].is_some()).collect();
-    if good.is_empty() {
-        bail!("{}: no frame with landmarks", lm_path.display());
-    }
-    let weights = vec![1.0; vertices.len()];
-    // 1. Identity from evenly spaced frames (multi-frame fit).
-    let nsel = o.identity_frames.clamp(1, good.len());
-    let sel: Vec<usize> = (0..nsel).map(|j| good[j * good.len() / nsel]).collect();
-    let fitter = Fitter::new(model, &vertices, params.clone())?;
-    let mut ws = fitter.workspace();
-    let inputs: Vec<FitInput> = sel
-        .iter()
-        .filter_map(|&f| images[f].as_ref())
-        .map(|im| FitInput {
-            image: im,
-            weights: &weights,
-            intrinsics: k,
-        })
-        .collect();
-    let mut seq: Vec<FitState> = (0..inputs.len()).map(|_| fitter.initial_state()).collect();
-    let rep = fitter.fit_sequence(&inputs, &mut seq, &mut ws)?;
-    eprintln!(
-        "{}: identity from {} frames: {} sweeps, cost {:.4} -> {:.4}, RMS {:.2} px",
-        video.display(),
-        inputs.len(),
-        rep.sweeps,
-        rep.initial_cost,
-        rep.final_cost,
-        rep.rms_px
+    print_summary(&a.video, &fitted);
+    println!(
+        "wrote {} and {}",
+        path.display(),
+        a.out.join("reprojection.csv").display()
     );
-    let w_id = seq[0].w_id.clone();
-    // 2. Per-frame expression and pose with the identity fixed, warm-started.
-    let per_frame = Fitter::new(
-        model,
-        &vertices,
-        FitParams {
-            update_identity: false,
-            prior_id: None,
-            ..params
-        },
-    )?;
-    let mut ws = per_frame.workspace();
-    let mut st = per_frame.initial_state();
-    st.w_id = w_id;
-    let mut states = Vec::with_capacity(records.len());
-    let mut rms = Vec::with_capacity(records.len());
-    for im in &images {
-        match im {
-            Some(im) => {
-                let input = FitInput {
-                    image: im,
-                    weights: &weights,
-                    intrinsics: k,
-                };
-                match per_frame.solve_into(&input, &mut ws, &mut st) {
-                    Ok(r) => {
-                        states.push(Some(st.clone()));
-                        rms.push(r.rms_px);
-                    }
-                    Err(e) => {
-                        eprintln!("fit failed on a frame: {e}");
-                        st.pose = None;
-                        states.push(None);
-                        rms.push(f64::NAN);
-                    }
-                }
-            }
-            None => {
-                states.push(None);
-                rms.push(f64::NAN);
-            }
-        }
-    }
-    Ok(Fitted { records, states, rms })
+    Ok(std::process::ExitCode::SUCCESS)
 }
 
-fn tensor_columns(model: &TensorModel) -> Vec<String> {
-    let mut cols: Vec<String> = POSE_COLUMNS.iter().map(|s| s.to_string()).collect();
-    cols.extend(model.identities.iter().map(|n| format!("id_{n}")));
-    cols.extend(model.expressions.iter().map(|n| format!("exp_{n}")));
-    cols
-}
-
-/// Confidence written to the CSV: `1 / (1 + RMS reprojection error in pixels)`.
-fn confidence(rms_px: f64) -> f64 {
-    if rms_px.is_finite() {
-        1.0 / (1.0 + rms_px)
-    } else {
-        0.0
-    }
-}
-
-fn write_tensor_csv(
-    path: &Path,
-    model: &TensorModel,
-    records: &[LandmarkRecord],
-    states: &[Option<FitState>],
-    rms: &[f64],
-) -> anyhow::Result<()> {
-    let cols = tensor_columns(model);
-    let mut wr = FrameCsvWriter::create(path, &cols)?;
-    let mut values = vec![f64::NAN; cols.len()];
-    for ((r, s), &e) in records.iter().zip(states).zip(rms) {
-        values.iter_mut().for_each(|v| *v = f64::NAN);
-        if let Some(s) = s {
-            if let Some(p) = s.pose {
-                let t = p.tvec();
-                let (rx, ry, rz) = p.euler_xyz();
-                values[..6].copy_from_slice(&[t.x, t.y, t.z, rx, ry, rz]);
-            }
-            values[6..6 + s.w_id.len()].copy_from_slice(&s.w_id);
-            values[6 + s.w_id.len()..].copy_from_slice(&s.w_exp);
-        }
-        wr.write_row(&FrameRow {
+fn write_landmarks_csv(path: &Path, records: &[facecap_core::csv::LandmarkRecord]) -> anyhow::Result<()> {
+    let cols = facecap_core::csv::landmark_columns();
+    let mut wr = facecap_core::csv::FrameCsvWriter::create(path, &cols)?;
+    let mut values = [0.0; 2 * facecap_core::landmarks::NUM_LANDMARKS];
+    for r in records {
+        facecap_core::csv::landmark_values(r.landmarks.as_ref(), &mut values);
+        wr.write_row(&facecap_core::csv::FrameRow {
             frame: r.frame,
             timestamp: r.timestamp,
-            success: s.is_some(),
-            confidence: if s.is_some() { confidence(e) } else { 0.0 },
+            success: r.success,
+            confidence: r.confidence,
             values: &values,
         })?;
     }
@@ -437,105 +229,7 @@ fn write_tensor_csv(
     Ok(())
 }
 
-fn run_fit(a: FitArgs) -> anyhow::Result<std::process::ExitCode> {
-    let model = TensorModel::load(&a.fit.model)?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let fitted = fit_video(&a.video, a.landmarks.as_deref(), &a.fit, &model)?;
-    let path = a.out.join("tensor.csv");
-    write_tensor_csv(&path, &model, &fitted.records, &fitted.states, &fitted.rms)?;
-    let ok: Vec<f64> = fitted.rms.iter().copied().filter(|r| r.is_finite()).collect();
-    let mean = ok.iter().sum::<f64>() / ok.len().max(1) as f64;
-    println!(
-        "{}: {} / {} frames fitted, mean landmark reprojection RMS {:.2} px -> {}",
-        a.video.display(),
-        ok.len(),
-        fitted.records.len(),
-        mean,
-        path.display()
-    );
-    Ok(std::process::ExitCode::SUCCESS)
-}
-
 /// Runs `facecap transfer`.
 pub fn run_transfer(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
-    let model = TensorModel::load(&a.fit.model)?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let src = fit_video(&a.source, a.source_landmarks.as_deref(), &a.fit, &model)?;
-    let tgt = fit_video(&a.target, a.target_landmarks.as_deref(), &a.fit, &model)?;
-    write_tensor_csv(
-        &a.out.join("source_tensor.csv"),
-        &model,
-        &src.records,
-        &src.states,
-        &src.rms,
-    )?;
-    write_tensor_csv(
-        &a.out.join("target_tensor.csv"),
-        &model,
-        &tgt.records,
-        &tgt.states,
-        &tgt.rms,
-    )?;
-    // Carry the last good state over failed frames so every frame has weights.
-    let fill = |states: &[Option<FitState>]| -> anyhow::Result<Vec<FitState>> {
-        let first = states.iter().flatten().next().cloned().context("no fitted frame")?;
-        let mut last = first;
-        Ok(states
-            .iter()
-            .map(|s| {
-                if let Some(s) = s {
-                    last = s.clone();
-                }
-                last.clone()
-            })
-            .collect())
-    };
-    let s_states = fill(&src.states)?;
-    let t_states = fill(&tgt.states)?;
-    let frames = facecap_tensor::transfer::combine(&s_states, &t_states)?;
-    let w_id = frames[0].w_id.clone();
-    // Animated GLB: the target identity's expression rig with the source's weights.
-    let rig = model.expression_rig(&w_id)?;
-    let fps_times: Vec<f32> = src.records.iter().map(|r| r.timestamp as f32).collect();
-    let mut times: Vec<f32> = Vec::with_capacity(fps_times.len());
-    let mut weights: Vec<Vec<f32>> = Vec::with_capacity(fps_times.len());
-    for (t, f) in fps_times.iter().zip(&frames) {
-        if times.last().is_some_and(|&l| *t <= l) {
-            continue;
-        }
-        times.push(*t);
-        weights.push(f.w_exp.iter().map(|&w| w as f32).collect());
-    }
-    let anim = facecap_core::gltf_io::MorphAnimation {
-        times_s: times,
-        weights,
-    };
-    facecap_core::gltf_io::write_glb(a.out.join("transfer.glb"), &rig, Some(&anim))?;
-    // Parameters CSV: target pose, target identity, source expression.
-    let tstates: Vec<Option<FitState>> = frames
-        .iter()
-        .map(|f| {
-            Some(FitState {
-                w_id: f.w_id.clone(),
-                w_exp: f.w_exp.clone(),
-                pose: f.pose,
-                depth: Vec::new(),
-            })
-        })
-        .collect();
-    write_tensor_csv(&a.out.join("transfer.csv"), &model, &src.records, &tstates, &src.rms)?;
-    if a.obj {
-        let dir = a.out.join("obj");
-        std::fs::create_dir_all(&dir)?;
-        for (i, f) in frames.iter().enumerate() {
-            let pts = model.generate_points(&f.w_id, &f.w_exp)?;
-            facecap_tensor::obj::write_obj(&dir.join(format!("frame_{i:05}.obj")), &pts, &model.triangles)?;
-        }
-    }
-    println!(
-        "transfer: {} source frames onto the target identity -> {}",
-        frames.len(),
-        a.out.display()
-    );
-    Ok(std::process::ExitCode::SUCCESS)
+    crate::cmd_transfer::run(a)
 }

@@ -14,6 +14,8 @@ mod cmd_muscle;
 mod cmd_solve;
 mod cmd_synth;
 mod cmd_tensor;
+mod cmd_tensor_fit;
+mod cmd_transfer;
 mod default_rig;
 mod livelink;
 mod progress;

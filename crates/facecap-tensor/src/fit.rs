@@ -194,7 +194,6 @@ pub struct FitWorkspace {
     pts: Vec<Point3<f64>>,
     row0: Vec<f64>,
     row1: Vec<f64>,
-    tcon: Vec<f64>,
     h: Vec<f64>,
     g: Vec<f64>,
     hdb: Vec<f64>,
@@ -203,6 +202,10 @@ pub struct FitWorkspace {
     grad: Vec<f64>,
     sol: Vec<f64>,
     depth_backup: Vec<f64>,
+    /// Per point, the core contracted with the identity modes: `[N][3][r_exp]`.
+    texp: Vec<f64>,
+    /// Per point, the core contracted with the expression modes: `[N][3][r_id]`.
+    tid: Vec<f64>,
 }
 
 /// The fitter: a tensor model restricted to the fitted vertices (immutable, `Send + Sync`).
@@ -355,7 +358,6 @@ impl Fitter {
             pts: vec![Point3::origin(); n],
             row0: vec![0.0; r],
             row1: vec![0.0; r],
-            tcon: vec![0.0; 3 * r],
             h: vec![0.0; r * r],
             g: vec![0.0; r],
             hdb: vec![0.0; d * d],
@@ -364,6 +366,8 @@ impl Fitter {
             grad: vec![0.0; d],
             sol: vec![0.0; d.max(r)],
             depth_backup: vec![0.0; n],
+            texp: vec![0.0; n * 3 * self.r_exp],
+            tid: vec![0.0; n * 3 * self.r_id],
         }
     }
 
@@ -420,6 +424,45 @@ impl Fitter {
             for c in 0..3 {
                 let row = &self.core[(3 * k + c) * blk..(3 * k + c + 1) * blk];
                 p[c] = self.mean[3 * k + c] + dot(row, &ws.ab);
+            }
+        }
+    }
+
+    /// `texp[k][c] = alpha^T C_kc` (the core of point `k`, coordinate `c`, contracted
+    /// with the identity modes) for every point; `ws.alpha` must be current.
+    fn contract_exp(&self, ws: &mut FitWorkspace) {
+        let (re, blk) = (self.r_exp, self.r_id * self.r_exp);
+        for (core, out) in self.core.chunks_exact(blk).zip(ws.texp.chunks_exact_mut(re)) {
+            out.iter_mut().for_each(|o| *o = 0.0);
+            for (al, row) in ws.alpha.iter().zip(core.chunks_exact(re)) {
+                for (o, cv) in out.iter_mut().zip(row) {
+                    *o += al * cv;
+                }
+            }
+        }
+    }
+
+    /// `tid[k][c] = C_kc beta` for every point; `ws.beta` must be current.
+    fn contract_id(&self, ws: &mut FitWorkspace) {
+        let (re, ri, blk) = (self.r_exp, self.r_id, self.r_id * self.r_exp);
+        for (core, out) in self.core.chunks_exact(blk).zip(ws.tid.chunks_exact_mut(ri)) {
+            for (o, row) in out.iter_mut().zip(core.chunks_exact(re)) {
+                *o = dot(row, &ws.beta);
+            }
+        }
+    }
+
+    /// `ws.pts` from a contraction (`texp` with `beta`, or `tid` with `alpha`): the
+    /// same points as [`Self::update_points`] at a fraction of the cost.
+    fn points_from(&self, block: Block, ws: &mut FitWorkspace) {
+        let (t, w, r) = match block {
+            Block::Exp => (&ws.texp, &ws.beta, self.r_exp),
+            Block::Id => (&ws.tid, &ws.alpha, self.r_id),
+        };
+        for (k, p) in ws.pts.iter_mut().enumerate() {
+            for c in 0..3 {
+                let row = &t[(3 * k + c) * r..(3 * k + c + 1) * r];
+                p[c] = self.mean[3 * k + c] + dot(row, w);
             }
         }
     }
@@ -538,40 +581,23 @@ impl Fitter {
         let t = pose.0.translation.vector;
         let k = &input.intrinsics;
         let sw: f64 = input.weights.iter().sum();
-        let blk = self.r_id * self.r_exp;
         for (idx, ((x, &w), &z)) in input.image.iter().zip(input.weights).zip(&state.depth).enumerate() {
             if w <= 0.0 {
                 continue;
             }
             let wk = scale * w / sw;
-            // Contract the core of this point with the fixed block.
-            for c in 0..3 {
-                let core = &self.core[(3 * idx + c) * blk..(3 * idx + c + 1) * blk];
-                let out = &mut ws.tcon[c * r..(c + 1) * r];
-                match block {
-                    Block::Exp => {
-                        out.iter_mut().for_each(|o| *o = 0.0);
-                        for (a, row) in core.chunks_exact(self.r_exp).enumerate() {
-                            let al = ws.alpha[a];
-                            for (o, cv) in out.iter_mut().zip(row) {
-                                *o += al * cv;
-                            }
-                        }
-                    }
-                    Block::Id => {
-                        for (o, row) in out.iter_mut().zip(core.chunks_exact(self.r_exp)) {
-                            *o = dot(row, &ws.beta);
-                        }
-                    }
-                }
-            }
+            // The core of this point contracted with the fixed block (precomputed).
+            let tcon = match block {
+                Block::Exp => &ws.texp[3 * idx * r..3 * (idx + 1) * r],
+                Block::Id => &ws.tid[3 * idx * r..3 * (idx + 1) * r],
+            };
             let m = [self.mean[3 * idx], self.mean[3 * idx + 1], self.mean[3 * idx + 2]];
             let qx = (x.x - k.cx) * z / k.fx;
             let qy = (x.y - k.cy) * z / k.fy;
             let y0 = qx - (rm[(0, 0)] * m[0] + rm[(0, 1)] * m[1] + rm[(0, 2)] * m[2] + t.x);
             let y1 = qy - (rm[(1, 0)] * m[0] + rm[(1, 1)] * m[1] + rm[(1, 2)] * m[2] + t.y);
             for j in 0..r {
-                let (t0, t1, t2) = (ws.tcon[j], ws.tcon[r + j], ws.tcon[2 * r + j]);
+                let (t0, t1, t2) = (tcon[j], tcon[r + j], tcon[2 * r + j]);
                 ws.row0[j] = rm[(0, 0)] * t0 + rm[(0, 1)] * t1 + rm[(0, 2)] * t2;
                 ws.row1[j] = rm[(1, 0)] * t0 + rm[(1, 1)] * t1 + rm[(1, 2)] * t2;
             }
@@ -662,14 +688,42 @@ impl Fitter {
         ws.g[..r].iter_mut().for_each(|v| *v = 0.0);
     }
 
+    /// Expression step; leaves the new points in `ws.pts` and the modes current.
     fn exp_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
         self.update_modes(state, ws);
+        self.contract_exp(ws);
         self.clear_normal(Block::Exp, ws);
         self.accumulate(Block::Exp, input, state, ws, 1.0);
         let mut w = std::mem::take(&mut state.w_exp);
         let res = self.solve_block(Block::Exp, self.params.lambda_exp, &mut w, ws);
         state.w_exp = w;
-        res
+        res?;
+        mat_t_vec(&self.u_exp, self.ne, self.r_exp, &state.w_exp, &mut ws.beta);
+        self.points_from(Block::Exp, ws);
+        Ok(())
+    }
+
+    /// Identity step of one frame; leaves the new points in `ws.pts`. `ws.alpha` and
+    /// `ws.beta` must be current.
+    fn id_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
+        self.contract_id(ws);
+        self.clear_normal(Block::Id, ws);
+        self.accumulate(Block::Id, input, state, ws, 1.0);
+        let mut w = std::mem::take(&mut state.w_id);
+        let res = self.solve_block(Block::Id, self.params.lambda_id, &mut w, ws);
+        state.w_id = w;
+        res?;
+        mat_t_vec(&self.u_id, self.ni, self.r_id, &state.w_id, &mut ws.alpha);
+        self.points_from(Block::Id, ws);
+        Ok(())
+    }
+
+    /// Cost of the state for the points already in `ws.pts`.
+    fn cost_of_points(&self, input: &FitInput, state: &FitState, ws: &FitWorkspace, with_id: bool) -> f64 {
+        match state.pose {
+            Some(p) => self.data_cost(input, &p, &state.depth, &ws.pts) + self.prior_cost(state, with_id),
+            None => f64::INFINITY,
+        }
     }
 
     /// Fits one frame, warm-started from `state`. Does not allocate.
@@ -682,7 +736,9 @@ impl Fitter {
         self.check_input(input, state)?;
         self.update_points(state, ws);
         self.pose_step(input, state, ws)?;
-        let mut cost = self.cost_inner(input, state, ws, true);
+        // ws.pts holds the points of the state's weights from here on: every step
+        // below updates them from its own contraction.
+        let mut cost = self.cost_of_points(input, state, ws, true);
         let initial = cost;
         let mut max_increase = f64::NEG_INFINITY;
         let mut stop = Stop::MaxSweeps;
@@ -690,20 +746,13 @@ impl Fitter {
         for s in 0..self.params.max_sweeps {
             sweeps = s + 1;
             if s > 0 {
-                // ws.pts holds the current points from the cost evaluation.
                 self.pose_step(input, state, ws)?;
             }
             self.exp_step(input, state, ws)?;
             if self.params.update_identity {
-                self.update_modes(state, ws);
-                self.clear_normal(Block::Id, ws);
-                self.accumulate(Block::Id, input, state, ws, 1.0);
-                let mut w = std::mem::take(&mut state.w_id);
-                let res = self.solve_block(Block::Id, self.params.lambda_id, &mut w, ws);
-                state.w_id = w;
-                res?;
+                self.id_step(input, state, ws)?;
             }
-            let new = self.cost_inner(input, state, ws, true);
+            let new = self.cost_of_points(input, state, ws, true);
             max_increase = max_increase.max(new - cost);
             let rel = (cost - new) / cost.max(1e-300);
             cost = new;
@@ -712,7 +761,6 @@ impl Fitter {
                 break;
             }
         }
-        self.update_points(state, ws);
         let rms_px = state
             .pose
             .map(|p| pose::reprojection_rms(&ws.pts, input.image, input.weights, &input.intrinsics, &p))
@@ -796,6 +844,7 @@ impl Fitter {
                 self.clear_normal(Block::Id, ws);
                 for (f, s) in frames.iter().zip(states.iter()) {
                     self.update_modes(s, ws);
+                    self.contract_id(ws);
                     self.accumulate(Block::Id, f, s, ws, 1.0);
                 }
                 self.solve_block(Block::Id, self.params.lambda_id, &mut w_id, ws)?;
