@@ -9,23 +9,51 @@ use nalgebra::Point2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// A smooth random texture: sum of sinusoids with wavelengths 10..30 px.
+/// A smooth random texture: sum of sinusoids with wavelengths `lambda` px.
 struct Texture {
     waves: Vec<(f64, f64, f64, f64)>, // (kx, ky, phase, amplitude)
 }
 
 impl Texture {
+    /// The texture of the status / parallelism tests (wavelengths 10..30 px).
     fn new(rng: &mut ChaCha8Rng) -> Self {
-        let waves = (0..8)
-            .map(|_| {
-                let lambda = rng.random_range(10.0..30.0);
-                let theta: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+        Self::with_wavelengths(rng, 10.0..30.0)
+    }
+
+    /// Texture for shift recovery. With integer shifts the error is ~1e-4 px, so
+    /// what limits sub-pixel recovery is the 8-bit rounding of the shifted image,
+    /// which acts like noise: its effect falls with the gradient energy in the
+    /// window's weakest direction. So: 4 waves of amplitude 29..31 (they never
+    /// clip: 4 · 31 < 127.5), wavelengths 10..24 px (steep, yet smooth enough for
+    /// bilinear interpolation), one direction per 45° sector (a near-isotropic
+    /// gradient matrix). The old texture (8 waves of amplitude 12..16, random
+    /// directions, wavelengths 10..30) left ~10 % of points 0.02-0.03 px off.
+    fn sharp(rng: &mut ChaCha8Rng) -> Self {
+        Self::with(rng, 10.0..24.0, 29.0..31.0, 4)
+    }
+
+    fn with_wavelengths(rng: &mut ChaCha8Rng, lambda: std::ops::Range<f64>) -> Self {
+        Self::with(rng, lambda, 12.0..16.0, 0)
+    }
+
+    /// `stratified > 0`: that many waves, one direction per `180° / stratified`
+    /// sector; 0: 8 waves with uniformly random directions.
+    fn with(rng: &mut ChaCha8Rng, lambda: std::ops::Range<f64>, amp: std::ops::Range<f64>, stratified: usize) -> Self {
+        let n = if stratified > 0 { stratified } else { 8 };
+        let waves = (0..n)
+            .map(|i| {
+                let lambda = rng.random_range(lambda.clone());
+                let theta: f64 = if stratified > 0 {
+                    (i as f64 + rng.random_range(0.0..1.0)) * std::f64::consts::PI / n as f64
+                } else {
+                    rng.random_range(0.0..std::f64::consts::TAU)
+                };
                 let k = std::f64::consts::TAU / lambda;
                 (
                     k * theta.cos(),
                     k * theta.sin(),
                     rng.random_range(0.0..std::f64::consts::TAU),
-                    rng.random_range(12.0..16.0),
+                    rng.random_range(amp.clone()),
                 )
             })
             .collect();
@@ -80,20 +108,26 @@ fn pyramid_and_gradients_equal_direct_formulas() {
     }
 }
 
+/// Synthetic image pairs in the shift-recovery property test (8 points each).
+const CASES: usize = 16;
+
 #[test]
 fn fast_and_reference_recover_known_subpixel_shifts() {
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
-    // A tight stopping threshold: with OpenCV's 0.01 px the last step alone may leave ~0.01 px.
+    // A tight stopping threshold: with OpenCV's 0.01 px the last step alone may leave
+    // ~0.01 px. A 31x31 window averages the rounding noise of the synthetic images
+    // over 2.2x more pixels than 21x21 (see `Texture::sharp`).
     let params = LkParams {
         epsilon: 1e-3,
+        window: 31,
         ..LkParams::default()
     };
     let lk = PyramidLk::new(params).unwrap();
     let mut ws = LkWorkspace::new(&lk);
     let (mut worst_fast, mut worst_ref, mut worst_diff) = (0.0f64, 0.0f64, 0.0f64);
     let mut errs_fast = Vec::new();
-    for _case in 0..6 {
-        let tex = Texture::new(&mut rng);
+    for _case in 0..CASES {
+        let tex = Texture::sharp(&mut rng);
         let (sx, sy) = (rng.random_range(-3.0..3.0), rng.random_range(-3.0..3.0));
         let a = tex.image(160, 128, 0.0, 0.0);
         let b = tex.image(160, 128, sx, sy);
@@ -120,19 +154,19 @@ fn fast_and_reference_recover_known_subpixel_shifts() {
     }
     errs_fast.sort_by(f64::total_cmp);
     let p90 = errs_fast[errs_fast.len() * 9 / 10];
+    assert_eq!(errs_fast.len(), CASES * 8);
     let median = errs_fast[errs_fast.len() / 2];
     eprintln!(
         "error vs truth: fast median {median:.4} p90 {p90:.4} max {worst_fast:.4} px; reference max {worst_ref:.4} px; fast-vs-ref max {worst_diff:.4} px"
     );
     // The two implementations agree far inside 0.02 px.
     assert!(worst_diff <= 0.005, "fast vs reference {worst_diff}");
-    // Recovery of the true shift is limited by OpenCV's stopping rules (step <= 0.01 px, or
-    // the oscillation test, which fires once two consecutive steps sum to < 0.01 px): 90 % of
-    // points within 0.02 px, all within 0.03 px.
+    // Every generated point recovers its true shift within 0.02 px (the texture is
+    // chosen so that 8-bit rounding, not the method, sets the error; OpenCV's
+    // stopping rules add at most ~0.005 px with epsilon 1e-3).
     assert!(median <= 0.01, "fast median {median}");
-    assert!(p90 <= 0.02, "fast p90 {p90}");
-    assert!(worst_fast <= 0.03, "fast {worst_fast}");
-    assert!(worst_ref <= 0.03, "reference {worst_ref}");
+    assert!(worst_fast <= 0.02, "fast {worst_fast}");
+    assert!(worst_ref <= 0.02, "reference {worst_ref}");
 }
 
 #[test]
