@@ -3,7 +3,7 @@
 //! ```text
 //! facecap solve LANDMARKS.csv --rig RIG.glb --landmark-map MAP.json [--width W --height H]
 //!     [--camera fx,fy,cx,cy] [--method exact3d|exact|bobyqa|region|pca] [--l1 1] [--temporal 0]
-//!     --out DIR [--obj]
+//!     [--shapes NAME,NAME,...] --out DIR [--obj]
 //! ```
 //!
 //! Input: the OpenFace-style per-frame CSV our tracker writes (`frame,timestamp,success,
@@ -69,6 +69,9 @@ pub struct Args {
     /// Also write one posed OBJ per frame under DIR/meshes.
     #[arg(long)]
     pub obj: bool,
+    /// Solve for these blendshapes only (comma-separated rig names, in this order; default: all).
+    #[arg(long, value_name = "NAME,NAME,...")]
+    pub shapes: Option<String>,
 }
 
 fn parse_camera(text: &str) -> anyhow::Result<Intrinsics> {
@@ -106,6 +109,16 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             args.landmark_map.display()
         )
     })?;
+    let rig = match &args.shapes {
+        Some(list) => {
+            let names: Vec<&str> = list.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
+            if names.is_empty() {
+                bail!("--shapes {list:?}: no blendshape names given");
+            }
+            rig.select(&names).with_context(|| format!("--shapes {list:?}"))?
+        }
+        None => rig,
+    };
     let records = read_landmarks_csv(&args.landmarks)?;
     if records.is_empty() {
         bail!("{} has no frames", args.landmarks.display());
@@ -134,6 +147,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let mut anim = MorphAnimation::default();
     let mut posed = Vec::new();
     let (mut solved, mut err_sum) = (0usize, 0.0f64);
+    let mut times_us: Vec<f64> = Vec::with_capacity(records.len());
     for rec in &records {
         let Some(lm) = rec.landmarks.as_ref().filter(|_| rec.success) else {
             state.reset();
@@ -149,9 +163,11 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             }
             continue;
         };
+        let t0 = std::time::Instant::now();
         let report = solver
             .solve_into(lm, &mut ws, &mut state, &mut sol)
             .with_context(|| format!("frame {}", rec.frame))?;
+        times_us.push(t0.elapsed().as_secs_f64() * 1e6);
         solved += 1;
         err_sum += sol.reprojection_error(lm);
         rows.push((rec.frame, rec.timestamp, Some(sol.weights.clone())));
@@ -191,12 +207,14 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     if let (Some(mesh), false) = (rig.mesh.as_ref(), anim.times_s.is_empty()) {
         write_glb(args.out.join("animation.glb"), mesh, Some(&anim))?;
     }
+    times_us.sort_by(f64::total_cmp);
     eprintln!(
-        "solve: method {}, {} shapes, {solved}/{} frames solved, mean landmark error {:.2} px; wrote {}",
+        "solve: method {}, {} shapes, {solved}/{} frames solved, mean landmark error {:.2} px, median solve time {:.1} us/frame; wrote {}",
         method.name(),
         n,
         records.len(),
         if solved > 0 { err_sum / solved as f64 } else { f64::NAN },
+        times_us.get(times_us.len() / 2).copied().unwrap_or(f64::NAN),
         args.out.display()
     );
     Ok(std::process::ExitCode::SUCCESS)

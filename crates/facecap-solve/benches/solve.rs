@@ -6,7 +6,15 @@
 //! anchor's recipe), so the BOBYQA time compares with dlib's on the same problems.
 //! 53 shapes: the ICT ARKit-53 rig (synthetic rig if the shared data is absent), frontal frames.
 //!
-//! `cargo bench -p facecap-solve --bench solve`
+//! Warm ids (`*_warm*`): a smooth 60-frame synthetic trajectory (4 active shapes, head turning
+//! +-20 deg yaw / +-8 deg pitch, 0.5 px noise), the state carried from frame to frame as in
+//! tracking; every call solves the next frame (changing landmarks), wrapping around.
+//!
+//! Goals of issue 5 (docs/bench/solve.md): `solve/exact_warm/16` <= 20 us, `solve/exact_warm/53`
+//! <= 60 us; `solve/bobyqa/16` <= 0.5x dlib's `find_min_bobyqa` on the same 12 problems
+//! (`testdata/solve/time_dlib_bobyqa.py`).
+//!
+//! `cargo bench -j 1 -p facecap-solve --bench solve -- 'exact|bobyqa/16'`
 
 use std::time::Duration;
 
@@ -101,6 +109,7 @@ fn solvers(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(3))
         .warm_up_time(Duration::from_secs(1));
     let obj = ObjectiveParams::default();
+    let obj_temporal = ObjectiveParams { temporal: 200.0, ..obj };
 
     // 16 shapes, fixture problems (2D methods)
     let (basis16, frames16) = fixture_basis();
@@ -155,6 +164,10 @@ fn solvers(c: &mut Criterion) {
             false,
         );
     }
+    // with the temporal term (mu > 0 changes the Hessian's diagonal shift every frame, so the
+    // QP factor is recomputed instead of reused)
+    let s = AnySolver::new(Method::Exact, &rig, cam, obj_temporal).unwrap();
+    bench_one(&mut g, BenchmarkId::new("exact_warm_temporal", n), &s, &tl, false);
     if n > 16 {
         let sub = rig
             .select(&rig.names.iter().take(16).map(String::as_str).collect::<Vec<_>>())
@@ -185,6 +198,8 @@ fn solvers(c: &mut Criterion) {
                 false,
             );
         }
+        let s = AnySolver::new(Method::Exact, &sub, cam, obj_temporal).unwrap();
+        bench_one(&mut g, BenchmarkId::new("exact_warm_temporal", 16), &s, &tl, false);
     }
     g.finish();
 }

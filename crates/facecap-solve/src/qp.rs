@@ -542,8 +542,10 @@ pub fn active_set_reuse(
     }
     *factor_valid = true;
     *factor_n = n;
-    // the certificate uses a freshly computed gradient (u was updated incrementally)
-    finish(h, g, lo, hi, x, grad, changes, tol, false)
+    // grad was computed at this x in the last pass of the loop (u is rebuilt from scratch at
+    // every call and only updated a few times within it, so its rounding stays at the level of
+    // one product)
+    finish(h, g, lo, hi, x, grad, changes, tol, true)
 }
 
 /// `y += a x`.

@@ -229,10 +229,10 @@ impl Frame2d {
 
 pub(crate) const COORDS: usize = 2 * NUM_LANDMARKS;
 
-/// Dot product with four independent partial sums (lets the compiler use SIMD lanes; the
-/// summation order differs from a plain left-to-right sum only by rounding).
+/// Dot product with four independent partial sums (differs from a left-to-right sum only by
+/// rounding).
 #[inline]
-pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+fn dot(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().min(b.len());
     let (a, b) = (&a[..n], &b[..n]);
     let mut acc = [0.0f64; 4];
