@@ -735,6 +735,7 @@ fn write_report(
         out_dir,
         &format!("facecap capture: {}", video_stem(video)),
         &rows,
+        "Each tile: the video frame with the tracked landmarks (green), and the rig posed with the solved weights and head rotation.",
         &sheets,
         &plots,
     )?;

@@ -96,6 +96,11 @@ pub struct TrackArgs {
     /// dlib 68-point model (default: the model cache).
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Also write `DIR/report/`: per-muscle curves (`curves_*.svg`), the mesh posed at the
+    /// rest frame and at each muscle's peak (`meshes.png`, one tile each) and `report.html`
+    /// with captions. Only the model mesh is rendered, never the video frames.
+    #[arg(long)]
+    pub report: bool,
 }
 
 /// Runs a muscle subcommand.
@@ -275,6 +280,7 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
     let max_jaw = rig.max_jaw();
     let (mut n, mut ok) = (0u64, 0u64);
     let mut last_t = -1.0f64;
+    let mut history: Vec<Solved> = Vec::new();
     for (index, t, lm, conf) in &lms.frames {
         values.fill(f64::NAN);
         let mut success = false;
@@ -297,6 +303,16 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
                 Ok(_) => {}
                 Err(e) => eprintln!("frame {index}: {e}"),
             }
+        }
+        if a.report {
+            history.push(Solved {
+                frame: *index,
+                t: *t,
+                success,
+                contractions: out.contractions.clone(),
+                jaw: out.jaw,
+                rotation: out.pose.0.rotation.to_rotation_matrix(),
+            });
         }
         csv.write_row(&FrameRow {
             frame: *index,
@@ -326,6 +342,9 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
         facecap_core::gltf_io::write_glb(&glb, &baked, Some(&anim))
             .with_context(|| format!("writing {}", glb.display()))?;
     }
+    if a.report {
+        write_muscle_report(&a.out.join("report"), &a.video, &rig, &mm, &map, &history)?;
+    }
     eprintln!(
         "{}: {n} frames, contractions on {ok}; wrote {} and {}",
         a.video.display(),
@@ -333,4 +352,199 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
         glb.display()
     );
     Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// One solved frame kept for the report.
+struct Solved {
+    frame: u64,
+    t: f64,
+    success: bool,
+    contractions: Vec<f64>,
+    jaw: f64,
+    rotation: nalgebra::Rotation3<f64>,
+}
+
+/// Per-muscle curves, the mesh posed at the rest frame and at each muscle's peak, and an
+/// HTML page tying them together (see [`TrackArgs::report`]).
+fn write_muscle_report(
+    dir: &Path,
+    video: &Path,
+    rig: &MuscleRig,
+    mesh: &MorphMesh,
+    map: &LandmarkMap,
+    frames: &[Solved],
+) -> anyhow::Result<()> {
+    use crate::report;
+    let (face_vertices, face_triangles) = face_region(rig.base(), &mesh.base.triangles, map);
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let solved: Vec<&Solved> = frames.iter().filter(|f| f.success).collect();
+    let times: Vec<f64> = frames.iter().map(|f| f.t).collect();
+    let m = rig.num_muscles();
+    let max_jaw = rig.max_jaw();
+    let series = |k: usize| -> Vec<f64> {
+        frames
+            .iter()
+            .map(|f| {
+                if !f.success {
+                    f64::NAN
+                } else if k < m {
+                    f.contractions[k]
+                } else if max_jaw > 0.0 {
+                    f.jaw / max_jaw
+                } else {
+                    f.jaw
+                }
+            })
+            .collect()
+    };
+    // Group the curves: left side, right side, the rest (sphincter, unsided muscles, jaw).
+    let names = rig.names();
+    type Series = Vec<(String, Vec<f64>)>;
+    let mut groups: [(&str, &str, Series); 3] = [
+        ("curves_left.svg", "Left-side muscles (contraction)", Vec::new()),
+        ("curves_right.svg", "Right-side muscles (contraction)", Vec::new()),
+        (
+            "curves_other.svg",
+            "Other muscles (contraction) and jaw (angle / max angle)",
+            Vec::new(),
+        ),
+    ];
+    for (k, name) in names.iter().enumerate() {
+        let g = if name.ends_with("_L") {
+            0
+        } else if name.ends_with("_R") {
+            1
+        } else {
+            2
+        };
+        groups[g].2.push((name.clone(), series(k)));
+    }
+    if rig.jaw().is_some() {
+        groups[2].2.push(("jaw".into(), series(m)));
+    }
+    let mut plots = Vec::new();
+    for (file, title, s) in &groups {
+        if s.is_empty() {
+            continue;
+        }
+        let svg = report::svg_line_plot(title, &times, s, 1000, 300);
+        facecap_core::atomic::write_atomic(dir.join(file), |w| w.write_all(svg.as_bytes()))?;
+        plots.push((*file).to_string());
+    }
+
+    // Tiles: the least active solved frame, then each muscle's and the jaw's peak frame.
+    let activity = |f: &Solved| f.contractions.iter().sum::<f64>() + if max_jaw > 0.0 { f.jaw / max_jaw } else { 0.0 };
+    let mut picks: Vec<(String, &Solved)> = Vec::new();
+    if let Some(rest) = solved.iter().min_by(|a, b| activity(a).total_cmp(&activity(b))) {
+        picks.push(("least active frame".into(), rest));
+    }
+    #[allow(clippy::needless_range_loop)] // k == m is the jaw, not a name
+    for k in 0..=m {
+        if k == m && rig.jaw().is_none() {
+            break;
+        }
+        let value = |f: &Solved| if k < m { f.contractions[k] } else { f.jaw };
+        if let Some(peak) = solved.iter().max_by(|a, b| value(a).total_cmp(&value(b))) {
+            let label = if k < m { names[k].as_str() } else { "jaw" };
+            picks.push((format!("peak {label} = {:.2}", value(peak)), peak));
+        }
+    }
+    const TILE: u32 = 300;
+    const PER_ROW: u32 = 4;
+    let rows = (picks.len() as u32).div_ceil(PER_ROW).max(1);
+    let mut sheet = image::RgbImage::from_pixel(PER_ROW * TILE, rows * TILE, image::Rgb([255, 255, 255]));
+    let mut posed = vec![nalgebra::Point3::<f64>::origin(); rig.base().len()];
+    let flip = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(
+        1.0, -1.0, -1.0,
+    )));
+    let mut captions = Vec::new();
+    for (i, (label, f)) in picks.iter().enumerate() {
+        rig.pose_into(&f.contractions, f.jaw, &mut posed)?;
+        let pts: Vec<nalgebra::Point3<f32>> = face_vertices.iter().map(|&v| posed[v].cast()).collect();
+        let tile = report::render_mesh(&pts, &face_triangles, &(flip * f.rotation), TILE);
+        let (x, y) = ((i as u32 % PER_ROW) * TILE, (i as u32 / PER_ROW) * TILE);
+        image::imageops::overlay(&mut sheet, &tile, x as i64, y as i64);
+        captions.push(format!(
+            "tile {} (row {}, column {}): {label}, frame {}, t = {:.2} s",
+            i + 1,
+            i as u32 / PER_ROW + 1,
+            i as u32 % PER_ROW + 1,
+            f.frame,
+            f.t
+        ));
+    }
+    facecap_core::atomic::write_atomic(dir.join("meshes.png"), |w| {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        sheet
+            .write_to(&mut buf, image::ImageFormat::Png)
+            .map_err(std::io::Error::other)?;
+        w.write_all(buf.get_ref())
+    })?;
+    let summary = vec![
+        ("video".to_string(), video.display().to_string()),
+        ("frames".to_string(), frames.len().to_string()),
+        ("frames with a solve".to_string(), solved.len().to_string()),
+        ("muscles".to_string(), names.join(", ")),
+        (
+            "meshes.png".to_string(),
+            "the rig posed with the solved contractions, jaw and head rotation (no video pixels)".to_string(),
+        ),
+    ];
+    let sheets = vec![("meshes.png".to_string(), captions.join("; "))];
+    report::write_report_html(
+        dir,
+        "facecap muscle track",
+        &summary,
+        "The model mesh posed with the solved contractions, jaw angle and head rotation, at the least active frame and at each muscle's peak (tiles left to right, top to bottom).",
+        &sheets,
+        &plots,
+    )
+}
+
+/// The part of the mesh around the face: vertices whose rest position lies inside the
+/// landmarks' x/y bounding box grown by 15 % on each side and by 30 % above (+Y is up in
+/// the model: room for the forehead), with the triangles made only of them, re-indexed. Falls back to the
+/// whole mesh when the map yields no usable box.
+fn face_region(
+    base: &[nalgebra::Point3<f64>],
+    triangles: &[[u32; 3]],
+    map: &LandmarkMap,
+) -> (Vec<usize>, Vec<[u32; 3]>) {
+    let lm = facecap_muscle::defaults::landmark_positions(map, base);
+    let pts: Vec<&nalgebra::Point3<f64>> = lm.iter().flatten().collect();
+    let all = || ((0..base.len()).collect::<Vec<_>>(), triangles.to_vec());
+    if pts.len() < 3 {
+        return all();
+    }
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+    for p in &pts {
+        x0 = x0.min(p.x);
+        x1 = x1.max(p.x);
+        y0 = y0.min(p.y);
+        y1 = y1.max(p.y);
+    }
+    let (mx, my) = (0.15 * (x1 - x0), 0.15 * (y1 - y0));
+    if !(mx > 0.0 && my > 0.0) {
+        return all();
+    }
+    let inside = |p: &nalgebra::Point3<f64>| p.x >= x0 - mx && p.x <= x1 + mx && p.y >= y0 - my && p.y <= y1 + 2.0 * my;
+    let mut new_index = vec![u32::MAX; base.len()];
+    let mut kept = Vec::new();
+    for (i, p) in base.iter().enumerate() {
+        if inside(p) {
+            new_index[i] = kept.len() as u32;
+            kept.push(i);
+        }
+    }
+    let tris: Vec<[u32; 3]> = triangles
+        .iter()
+        .filter_map(|t| {
+            let m = t.map(|v| new_index.get(v as usize).copied().unwrap_or(u32::MAX));
+            m.iter().all(|&v| v != u32::MAX).then_some(m)
+        })
+        .collect();
+    if tris.is_empty() {
+        return all();
+    }
+    (kept, tris)
 }

@@ -221,6 +221,7 @@ pub fn write_report_html(
     dir: &Path,
     title: &str,
     summary_rows: &[(String, String)],
+    sheet_intro: &str,
     sheets: &[(String, String)],
     plots: &[String],
 ) -> anyhow::Result<()> {
@@ -235,7 +236,11 @@ pub fn write_report_html(
     for (k, v) in summary_rows {
         let _ = write!(html, "<tr><td>{}</td><td>{}</td></tr>", escape(k), escape(v));
     }
-    html.push_str("</table><h2>Contact sheet</h2><p>Each tile: the video frame with the tracked landmarks (green), and the rig posed with the solved weights and head rotation.</p><div class=\"sheet\">");
+    let _ = write!(
+        html,
+        "</table><h2>Contact sheet</h2><p>{}</p><div class=\"sheet\">",
+        escape(sheet_intro)
+    );
     for (file, caption) in sheets {
         let _ = write!(
             html,

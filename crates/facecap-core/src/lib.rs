@@ -32,6 +32,7 @@ pub mod atomic;
 pub mod bridge;
 pub mod camera;
 pub mod csv;
+pub mod epnp;
 pub mod formats;
 pub mod gltf_io;
 pub mod image_io;

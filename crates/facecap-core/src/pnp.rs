@@ -4,11 +4,13 @@
 //! intrinsics `K`, finds the [`ModelToCamera`] pose `(R, t)` minimising the
 //! reprojection error `sum_i || u_i - pi(K (R X_i + t)) ||^2`.
 //!
-//! 1. **Initialisation** (when no previous pose is given): POSIT, "Model-based object
-//!    pose in 25 lines of code" (DeMenthon & Davis 1995), in its least-squares form:
-//!    fit a scaled-orthographic camera to normalised image points corrected by the
-//!    current perspective factors `1 + eps_i = z_i / t_z`, re-orthonormalise, repeat.
-//!    Needs non-coplanar points (a face's 68 landmarks are).
+//! 1. **Initialisation** (when no previous pose is given), chosen by [`PnpInit`]:
+//!    EPnP (Lepetit et al. 2009, [`crate::epnp`], the default) with POSIT as the
+//!    fallback should it fail, or POSIT alone: "Model-based object pose in 25 lines of
+//!    code" (DeMenthon & Davis 1995), in its least-squares form: fit a
+//!    scaled-orthographic camera to normalised image points corrected by the current
+//!    perspective factors `1 + eps_i = z_i / t_z`, re-orthonormalise, repeat.
+//!    Both need non-coplanar points (a face's 68 landmarks are).
 //! 2. **Refinement**: Levenberg-Marquardt on the 6 pose parameters (rotation
 //!    increment as a left-multiplied rotation vector, translation), analytic
 //!    Jacobian, fixed-size 6x6 normal equations: no heap allocation.
@@ -25,6 +27,7 @@ use crate::error::{Error, Result};
 /// | `max_iterations` | 30 | LM iteration cap | >= 1 |
 /// | `posit_iterations` | 20 | POSIT iteration cap for the initial guess | >= 1 |
 /// | `tolerance_px` | 1e-6 | stop when the RMS error improves by less (px) | >= 0 |
+/// | `init` | `Epnp` | initialiser when no previous pose is given | [`PnpInit`] |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PnpParams {
     /// Levenberg-Marquardt iteration cap.
@@ -33,6 +36,18 @@ pub struct PnpParams {
     pub posit_iterations: usize,
     /// Convergence tolerance on the RMS reprojection error, in pixels.
     pub tolerance_px: f64,
+    /// Initialiser used by [`solve_pnp`] without a previous pose.
+    pub init: PnpInit,
+}
+
+/// Closed-form initialiser of [`solve_pnp`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PnpInit {
+    /// EPnP ([`crate::epnp::epnp`]); POSIT if EPnP fails.
+    #[default]
+    Epnp,
+    /// POSIT ([`posit`]).
+    Posit,
 }
 
 impl Default for PnpParams {
@@ -41,6 +56,7 @@ impl Default for PnpParams {
             max_iterations: 30,
             posit_iterations: 20,
             tolerance_px: 1e-6,
+            init: PnpInit::Epnp,
         }
     }
 }
@@ -274,7 +290,8 @@ pub fn refine_pose(
     }
 }
 
-/// Solves PnP: POSIT initialisation (or `init`), then LM refinement.
+/// Solves PnP: EPnP or POSIT initialisation ([`PnpParams::init`]; or `init` when
+/// given), then LM refinement.
 ///
 /// # Errors
 /// Mismatched lengths, fewer than 4 points, non-finite input, invalid parameters,
@@ -289,7 +306,13 @@ pub fn solve_pnp(
     validate(model, image, params)?;
     let mut pose = match init {
         Some(p) => p,
-        None => posit(model, image, k, params.posit_iterations)?,
+        None => match params.init {
+            PnpInit::Epnp => match crate::epnp::epnp(model, image, k) {
+                Ok(p) => p,
+                Err(_) => posit(model, image, k, params.posit_iterations)?,
+            },
+            PnpInit::Posit => posit(model, image, k, params.posit_iterations)?,
+        },
     };
     let report = refine_pose(&mut pose, k, model, image, params);
     if !report.rms_px.is_finite() {

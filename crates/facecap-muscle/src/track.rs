@@ -12,7 +12,7 @@
 //!    pose is solved and `y_k = p_k`: the mismatch between the actor's neutral face and the
 //!    mesh is never attributed to muscles. With `carry = 1`, `y_k(t) = x_k(t) - o_k` with
 //!    the first-frame offset `o_k = x_k(0) - p_k(0)`.
-//! 2. **Head pose** by PnP (core's POSIT + Levenberg-Marquardt) on the static points (eye
+//! 2. **Head pose** by PnP (core's EPnP + Levenberg-Marquardt) on the static points (eye
 //!    corners, nose), with the model deformed by the current contractions.
 //! 3. **Jaw angle** by golden-section search on `[0, max_angle]` of the jaw point's error.
 //! 4. **Contractions** by bounded minimisation on `[0, 1]^M` of
