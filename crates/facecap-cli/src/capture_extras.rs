@@ -188,9 +188,8 @@ impl TensorRun {
             };
             if self.fitter.solve_into(&input, &mut self.ws, &mut self.state).is_ok() {
                 if let Some(p) = &self.state.pose {
-                    let tv = p.tvec();
-                    let (rx, ry, rz) = p.euler_xyz();
-                    self.values[..6].copy_from_slice(&[tv.x, tv.y, tv.z, rx, ry, rz]);
+                    // Same convention as pose.csv (rotation relative to facing the camera).
+                    self.values[..6].copy_from_slice(&crate::cmd_capture::pose_row(Some(p)));
                 }
                 let ni = self.state.w_id.len();
                 self.values[6..6 + ni].copy_from_slice(&self.state.w_id);

@@ -525,7 +525,7 @@ fn capture_one(
 /// radians (`R = Rz Ry Rx`; Rx pitch, Ry yaw, Rz roll), like OpenFace. The rig is +Y up,
 /// +Z out of the face, so a face looking into the camera has model-to-camera rotation
 /// `F = diag(1, -1, -1)`; the reported rotation is `R F`, which is the identity then.
-fn pose_row(pose: Option<&ModelToCamera>) -> [f64; 6] {
+pub(crate) fn pose_row(pose: Option<&ModelToCamera>) -> [f64; 6] {
     match pose {
         Some(p) => {
             let t = p.tvec();
@@ -609,45 +609,44 @@ fn write_report(
 ) -> anyhow::Result<()> {
     let dir = out_dir.join("report");
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut sheets = Vec::new();
-    let mut posed = Vec::new();
-    for (idx, gray, f) in sheet {
-        let mut rgb = RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
-            let v = gray.get_pixel(x, y).0[0];
-            image::Rgb([v, v, v])
-        });
-        if let Some(l) = &f.landmarks {
-            let r = (gray.width().max(gray.height()) / 250).max(1) as i64;
-            report::draw_points(&mut rgb, &l.points, r, [40, 220, 60]);
-        }
-        let size = rgb.height().clamp(64, 720);
-        setup.rig_mesh.pose_into(&f.weights, &mut posed)?;
-        // Show the head rotation as seen by the camera: camera axes are x right, y down,
-        // z forward; the renderer looks along -z with y up, so flip y and z.
-        let rot = match &f.pose {
-            Some(p) => {
-                let flip = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(
-                    &nalgebra::Vector3::new(1.0, -1.0, -1.0),
-                ));
-                flip * p.0.rotation.to_rotation_matrix()
+    // Tiles are independent: render and encode them in parallel.
+    let tiles: Vec<anyhow::Result<(String, String)>> = sheet
+        .par_iter()
+        .map(|(idx, gray, f)| {
+            let mut rgb = RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
+                let v = gray.get_pixel(x, y).0[0];
+                image::Rgb([v, v, v])
+            });
+            if let Some(l) = &f.landmarks {
+                let r = (gray.width().max(gray.height()) / 250).max(1) as i64;
+                report::draw_points(&mut rgb, &l.points, r, [40, 220, 60]);
             }
-            None => nalgebra::Rotation3::identity(),
-        };
-        let render = report::render_mesh(&posed, &setup.rig_mesh.base.triangles, &rot, size);
-        let tile = report::side_by_side(&rgb, &render);
-        let name = format!("frame_{idx:06}.png");
-        let path = dir.join(&name);
-        facecap_core::atomic::write_atomic(&path, |w| {
-            let mut buf = std::io::Cursor::new(Vec::new());
-            tile.write_to(&mut buf, image::ImageFormat::Png)
-                .map_err(std::io::Error::other)?;
-            w.write_all(buf.get_ref())
-        })?;
-        sheets.push((
-            format!("report/{name}"),
-            format!("frame {idx}, t = {:.2} s, confidence {:.2}", f.timestamp, f.confidence),
-        ));
-    }
+            let size = rgb.height().clamp(64, 720);
+            let mut posed = Vec::new();
+            setup.rig_mesh.pose_into(&f.weights, &mut posed)?;
+            // Show the head rotation as seen by the camera: camera axes are x right, y down,
+            // z forward; the renderer looks along -z with y up, so flip y and z.
+            let rot = match &f.pose {
+                Some(p) => {
+                    let flip = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(
+                        &nalgebra::Vector3::new(1.0, -1.0, -1.0),
+                    ));
+                    flip * p.0.rotation.to_rotation_matrix()
+                }
+                None => nalgebra::Rotation3::identity(),
+            };
+            let render = report::render_mesh(&posed, &setup.rig_mesh.base.triangles, &rot, size);
+            let tile = report::side_by_side(&rgb, &render);
+            let name = format!("frame_{idx:06}.png");
+            let bytes = report::png_bytes_fast(&tile)?;
+            facecap_core::atomic::write_atomic(dir.join(&name), |w| w.write_all(&bytes))?;
+            Ok((
+                format!("report/{name}"),
+                format!("frame {idx}, t = {:.2} s, confidence {:.2}", f.timestamp, f.confidence),
+            ))
+        })
+        .collect();
+    let sheets = tiles.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
     let times = frame_times(frames);
     let mut plots = Vec::new();
     let mut svg = |file: &str, title: &str, series: Vec<(String, Vec<f64>)>| -> anyhow::Result<()> {

@@ -473,13 +473,8 @@ fn write_muscle_report(
             f.t
         ));
     }
-    facecap_core::atomic::write_atomic(dir.join("meshes.png"), |w| {
-        let mut buf = std::io::Cursor::new(Vec::new());
-        sheet
-            .write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(std::io::Error::other)?;
-        w.write_all(buf.get_ref())
-    })?;
+    let png = report::png_bytes_fast(&sheet)?;
+    facecap_core::atomic::write_atomic(dir.join("meshes.png"), |w| w.write_all(&png))?;
     let summary = vec![
         ("video".to_string(), video.display().to_string()),
         ("frames".to_string(), frames.len().to_string()),

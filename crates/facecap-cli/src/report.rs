@@ -108,6 +108,18 @@ pub fn render_mesh(
     img
 }
 
+/// Encodes `img` as PNG with fast compression (report images are written once and
+/// looked at by eye; the default compression costs several times more CPU).
+pub fn png_bytes_fast(img: &RgbImage) -> std::io::Result<Vec<u8>> {
+    use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+    use image::ImageEncoder;
+    let mut buf = Vec::new();
+    PngEncoder::new_with_quality(&mut buf, CompressionType::Fast, FilterType::Sub)
+        .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgb8)
+        .map_err(std::io::Error::other)?;
+    Ok(buf)
+}
+
 /// Places `a` and `b` side by side (heights matched by padding).
 pub fn side_by_side(a: &RgbImage, b: &RgbImage) -> RgbImage {
     let h = a.height().max(b.height());
