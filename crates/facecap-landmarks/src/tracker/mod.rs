@@ -275,6 +275,14 @@ pub struct TrackerReport {
     pub lk_tracked: usize,
     /// Median LK motion (px), 0 when LK was not used.
     pub lk_motion: f64,
+    /// Whether LK ran (pyramids built and the 68 points tracked) on this frame.
+    pub lk_ran: bool,
+    /// The cheap global-motion estimate (px) between the previous and this frame
+    /// over the face (see the module docs); `NaN` when it was not computed.
+    pub motion_estimate: f64,
+    /// RMS grey-level mismatch the motion test's translation leaves unexplained;
+    /// `NaN` when it was not computed.
+    pub motion_residual: f64,
 }
 
 /// State carried between frames.
@@ -313,6 +321,12 @@ pub struct TrackerWorkspace<FW, SW> {
     init: Vec<Point2<f64>>,
     out: Vec<Point2<f64>>,
     scratch: Vec<f64>,
+    /// The previous frame (for the motion test and for LK when it is needed).
+    prev_gray: GrayImage,
+    /// `prev_gray` holds the frame before the current one.
+    prev_valid: bool,
+    /// The LK workspace's latest pyramid is that of `prev_gray`.
+    lk_has_prev: bool,
 }
 
 /// The video landmark tracker. Immutable; state lives in [`TrackerState`].
@@ -375,12 +389,15 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
             finder: self.finder.new_workspace(),
             regressor: self.regressor.new_workspace(),
             boxes: Vec::with_capacity(16),
-            lk_next: vec![Point2::origin(); NUM_LANDMARKS],
-            lk_status: vec![TrackStatus::Tracked; NUM_LANDMARKS],
-            lk_err: vec![0.0; NUM_LANDMARKS],
+            lk_next: vec![Point2::origin(); LK_POINTS.len()],
+            lk_status: vec![TrackStatus::Tracked; LK_POINTS.len()],
+            lk_err: vec![0.0; LK_POINTS.len()],
             init: vec![Point2::origin(); NUM_LANDMARKS],
             out: vec![Point2::origin(); NUM_LANDMARKS],
             scratch: Vec::with_capacity(NUM_LANDMARKS),
+            prev_gray: GrayImage::new(0, 0),
+            prev_valid: false,
+            lk_has_prev: false,
         }
     }
 
@@ -494,35 +511,67 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
         let size = img.dimensions();
         if size != state.last_size {
             ws.lk.reset();
+            ws.prev_valid = false;
+            ws.lk_has_prev = false;
             state.tracking = false;
             state.last_size = size;
         }
-        ws.lk.push_frame(img)?;
-        let mut report = TrackerReport::default();
+        let mut report = TrackerReport {
+            motion_estimate: f64::NAN,
+            motion_residual: f64::NAN,
+            ..TrackerReport::default()
+        };
+        let lk_had_prev = std::mem::replace(&mut ws.lk_has_prev, false);
         let mut confidence = 0.0;
         let mut rect = None;
         let mut restarted = false;
 
         let periodic = p.redetect_interval > 0 && state.frames_since_detect >= p.redetect_interval;
-        if state.tracking && ws.lk.frames_pushed() >= 2 && !periodic {
-            // 3. LK carries the previous landmarks.
+        if state.tracking && ws.prev_valid && !periodic {
             let prev = &state.prev.points;
-            let rep = self
-                .lk
-                .track_into(&ws.lk, prev, &mut ws.lk_next, &mut ws.lk_status, &mut ws.lk_err)?;
-            report.lk_tracked = rep.tracked;
-            let frac = rep.tracked as f64 / NUM_LANDMARKS as f64;
-            if frac >= p.min_lk_fraction {
-                ws.scratch.clear();
-                for ((a, b), s) in prev.iter().zip(&ws.lk_next).zip(&ws.lk_status) {
-                    if s.is_tracked() {
-                        ws.scratch.push((b - a).norm());
-                    }
+            // 3a. Cheap motion test; LK only when the face moved.
+            let motion = global_motion(&ws.prev_gray, img, &state.prev.bounding_box());
+            report.motion_estimate = motion.map_or(f64::INFINITY, |m| m.shift);
+            report.motion_residual = motion.map_or(f64::INFINITY, |m| m.residual);
+            let use_lk = match motion {
+                Some(m) => m.shift > p.lk_motion_threshold || m.residual > MOTION_MAX_RESIDUAL,
+                None => true,
+            };
+            let frac = if use_lk {
+                // 3b. LK carries the previous landmarks: pyramids of the previous frame
+                // (reused when the last frame ran LK) and of this one.
+                if !lk_had_prev {
+                    ws.lk.reset();
+                    ws.lk.push_frame(&ws.prev_gray)?;
                 }
-                ws.scratch.sort_by(f64::total_cmp);
-                report.lk_motion = ws.scratch.get(ws.scratch.len() / 2).copied().unwrap_or(0.0);
-                if report.lk_motion > p.lk_motion_threshold {
-                    fit_similarity_apply(prev, &ws.lk_next, &ws.lk_status, &mut ws.init);
+                ws.lk.push_frame(img)?;
+                ws.lk_has_prev = true;
+                report.lk_ran = true;
+                let rep = self.lk.track_into(
+                    &ws.lk,
+                    &prev[LK_POINTS],
+                    &mut ws.lk_next,
+                    &mut ws.lk_status,
+                    &mut ws.lk_err,
+                )?;
+                report.lk_tracked = rep.tracked;
+                rep.tracked as f64 / LK_POINTS.len() as f64
+            } else {
+                1.0
+            };
+            if frac >= p.min_lk_fraction {
+                if use_lk {
+                    ws.scratch.clear();
+                    for ((a, b), s) in prev[LK_POINTS].iter().zip(&ws.lk_next).zip(&ws.lk_status) {
+                        if s.is_tracked() {
+                            ws.scratch.push((b - a).norm());
+                        }
+                    }
+                    ws.scratch.sort_by(f64::total_cmp);
+                    report.lk_motion = ws.scratch.get(ws.scratch.len() / 2).copied().unwrap_or(0.0);
+                }
+                if use_lk && report.lk_motion > p.lk_motion_threshold {
+                    fit_similarity_apply(&prev[LK_POINTS], &ws.lk_next, &ws.lk_status, prev, &mut ws.init);
                 } else {
                     ws.init.copy_from_slice(prev);
                 }
@@ -534,16 +583,24 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
                     }
                     ErtInit::MeanShapeInBox => self.regressor.predict(img, &r, &mut ws.regressor, &mut ws.out)?,
                 }
-                // Confidence.
-                let iod = iod_of(&ws.out).max(1.0);
-                let (mut sum, mut cnt) = (0.0, 0usize);
-                for ((o, l), s) in ws.out.iter().zip(&ws.lk_next).zip(&ws.lk_status) {
-                    if s.is_tracked() {
-                        sum += (o - l).norm();
-                        cnt += 1;
+                // Confidence (no agreement term when LK did not run).
+                let agree = if use_lk {
+                    let iod = iod_of(&ws.out).max(1.0);
+                    let (mut sum, mut cnt) = (0.0, 0usize);
+                    for ((o, l), s) in ws.out[LK_POINTS].iter().zip(&ws.lk_next).zip(&ws.lk_status) {
+                        if s.is_tracked() {
+                            sum += (o - l).norm();
+                            cnt += 1;
+                        }
                     }
-                }
-                let agree = if cnt > 0 { sum / cnt as f64 / iod } else { f64::INFINITY };
+                    if cnt > 0 {
+                        sum / cnt as f64 / iod
+                    } else {
+                        f64::INFINITY
+                    }
+                } else {
+                    0.0
+                };
                 let resid = self.shape_residual(&ws.out);
                 confidence = frac
                     * (-agree / p.agree_scale).exp()
@@ -616,9 +673,95 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
         if success {
             state.prev.points.copy_from_slice(&ws.out);
         }
+        // Keep this frame for the next one's motion test (and LK if needed).
+        if ws.prev_gray.dimensions() == size {
+            ws.prev_gray.copy_from_slice(img.as_raw());
+        } else {
+            ws.prev_gray.clone_from(img);
+        }
+        ws.prev_valid = true;
         Ok(report)
     }
 }
+
+/// Grid step (px) of the cheap motion test.
+const MOTION_GRID_STEP: usize = 4;
+/// RMS grey-level mismatch left by the motion test's translation above which LK
+/// runs anyway (the change is not a small shift).
+const MOTION_MAX_RESIDUAL: f64 = 12.0;
+/// Margin around the previous landmarks' bounding box in the motion test (fraction of its size).
+const MOTION_BOX_MARGIN: f64 = 0.1;
+
+/// Cheap global-motion test: one Gauss-Newton step of translation-only LK over the
+/// face (the previous landmarks' bounding box plus a margin) on a
+/// `MOTION_GRID_STEP`-px grid, with central-difference gradients of the previous
+/// frame: `d = -G⁻¹ b`, `G = Σ ∇I ∇Iᵀ`, `b = Σ (J - I) ∇I`. Returns `|d|` in pixels,
+/// or `None` when the region is degenerate (too small, flat). A single linearised
+/// step underestimates large motions, but they still exceed the threshold, which
+/// is all the test decides. The RMS of what the translation leaves unexplained
+/// catches changes that are not a small shift (a cut, a flat frame, a large
+/// motion the linearisation cannot see).
+fn global_motion(prev: &GrayImage, cur: &GrayImage, face: &Rect) -> Option<Motion> {
+    let (w, h) = (prev.width() as usize, prev.height() as usize);
+    if cur.dimensions() != prev.dimensions() || w < 3 || h < 3 {
+        return None;
+    }
+    let (mx, my) = (face.width * MOTION_BOX_MARGIN, face.height * MOTION_BOX_MARGIN);
+    let clamp = |v: f64, hi: usize| -> usize { v.max(1.0).min((hi - 2) as f64) as usize };
+    let (x0, x1) = (clamp(face.left - mx, w), clamp(face.left + face.width + mx, w));
+    let (y0, y1) = (clamp(face.top - my, h), clamp(face.top + face.height + my, h));
+    if x1 <= x0 || y1 <= y0 {
+        return None;
+    }
+    let (pi, ci) = (prev.as_raw(), cur.as_raw());
+    // Integer sums of 2x the central-difference gradient (exact).
+    let (mut gxx, mut gxy, mut gyy, mut bx, mut by) = (0i64, 0i64, 0i64, 0i64, 0i64);
+    let (mut tt, mut n) = (0i64, 0usize);
+    for y in (y0..=y1).step_by(MOTION_GRID_STEP) {
+        let (r, up, dn) = (y * w, (y - 1) * w, (y + 1) * w);
+        for x in (x0..=x1).step_by(MOTION_GRID_STEP) {
+            let gx = pi[r + x + 1] as i64 - pi[r + x - 1] as i64;
+            let gy = pi[dn + x] as i64 - pi[up + x] as i64;
+            let it = ci[r + x] as i64 - pi[r + x] as i64;
+            gxx += gx * gx;
+            gxy += gx * gy;
+            gyy += gy * gy;
+            bx += it * gx;
+            by += it * gy;
+            tt += it * it;
+            n += 1;
+        }
+    }
+    let (a, b, c) = (gxx as f64, gxy as f64, gyy as f64);
+    let det = a * c - b * b;
+    if det.is_nan() || det <= 1e-9 * (a + c) * (a + c) {
+        return None;
+    }
+    // With g = 2∇I: d = -G⁻¹ b = -2 (Σ g gᵀ)⁻¹ Σ (J - I) g.
+    let dx = -2.0 * (c * bx as f64 - b * by as f64) / det;
+    let dy = -2.0 * (a * by as f64 - b * bx as f64) / det;
+    // Σ (J - I)² minus its part explained by the gradients (the projection bᵀ G⁻¹ b).
+    let (bx, by) = (bx as f64, by as f64);
+    let explained = (c * bx * bx - 2.0 * b * bx * by + a * by * by) / det;
+    Some(Motion {
+        shift: (dx * dx + dy * dy).sqrt(),
+        residual: ((tt as f64 - explained).max(0.0) / n.max(1) as f64).sqrt(),
+    })
+}
+
+/// Result of [`global_motion`].
+#[derive(Debug, Clone, Copy)]
+struct Motion {
+    /// Estimated translation length (px).
+    shift: f64,
+    /// RMS unexplained grey-level difference.
+    residual: f64,
+}
+
+/// The landmarks LK tracks when it runs: the rigid nose and eye points, whose
+/// motion says where the face went (the similarity fitted to them moves all 68).
+/// A third of the 68 points, so a third of the LK cost.
+const LK_POINTS: std::ops::Range<usize> = RIGID_POINTS;
 
 /// Nose and eye points: little moved by expressions.
 const RIGID_POINTS: std::ops::Range<usize> = 27..48;
@@ -628,8 +771,14 @@ fn iod_of(pts: &[Point2<f64>]) -> f64 {
 }
 
 /// Fits the least-squares similarity `from -> to` over tracked points and writes
-/// `T(from)` into `out`.
-fn fit_similarity_apply(from: &[Point2<f64>], to: &[Point2<f64>], st: &[TrackStatus], out: &mut [Point2<f64>]) {
+/// `T(apply)` into `out` (`apply` unchanged when the fit is degenerate).
+fn fit_similarity_apply(
+    from: &[Point2<f64>],
+    to: &[Point2<f64>],
+    st: &[TrackStatus],
+    apply: &[Point2<f64>],
+    out: &mut [Point2<f64>],
+) {
     let (mut fx, mut fy, mut tx, mut ty, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for ((f, t), s) in from.iter().zip(to).zip(st) {
         if s.is_tracked() {
@@ -641,7 +790,7 @@ fn fit_similarity_apply(from: &[Point2<f64>], to: &[Point2<f64>], st: &[TrackSta
         }
     }
     if n < 2.0 {
-        out.copy_from_slice(from);
+        out.copy_from_slice(apply);
         return;
     }
     let (fx, fy, tx, ty) = (fx / n, fy / n, tx / n, ty / n);
@@ -656,11 +805,11 @@ fn fit_similarity_apply(from: &[Point2<f64>], to: &[Point2<f64>], st: &[TrackSta
         }
     }
     if d <= 0.0 {
-        out.copy_from_slice(from);
+        out.copy_from_slice(apply);
         return;
     }
     let (a, b) = (a / d, b / d);
-    for (o, f) in out.iter_mut().zip(from) {
+    for (o, f) in out.iter_mut().zip(apply) {
         let (x, y) = (f.x - fx, f.y - fy);
         *o = Point2::new(tx + a * x - b * y, ty + b * x + a * y);
     }
