@@ -10,18 +10,27 @@
 //! `lo`/`hi` may hold `-inf`/`+inf` (unbounded variables, e.g. pose increments in the 3D solve).
 //!
 //! # Method
-//! Projected Newton with a free-set reduced Hessian (Bertsekas 1982, "Projected Newton methods
-//! for optimization problems with simple constraints", SIAM J. Control Optim. 20(2)):
-//! 1. `grad = H x - g`; stop when the KKT conditions hold to `kkt_tol`:
-//!    `grad_i >= 0` at a lower bound, `grad_i <= 0` at an upper bound, `grad_i = 0` otherwise.
+//! [`solve_box_qp`] runs the primal active-set method [`active_set`] (Nocedal & Wright 2006,
+//! "Numerical Optimization", Algorithm 16.3, specialised to bounds as Stark & Parker 1995's
+//! BVLS): the working set starts as the bounds active at the warm start (at a vertex, e.g. the
+//! cold start `x = 0`, every bound whose multiplier has the wrong sign is released at once); each
+//! iteration solves the equality-constrained problem on the free set `F` with the Cholesky factor
+//! of `H_FF`, updated by one-row appends and Givens deletions (`O(m^2)`, no refactorisation),
+//! steps to the first blocking bound (added to the working set) or, at a subspace minimiser,
+//! releases the bound with the most wrongly signed multiplier. Finite termination for positive
+//! definite `H`; the KKT conditions (`grad_i >= 0` at a lower bound, `<= 0` at an upper bound,
+//! `= 0` otherwise, to `kkt_tol`) certify the result. [`solve_box_qp_reuse`] also keeps the
+//! factor and working set from one call to the next when the caller knows `H = c H_prev`.
+//!
+//! Fallback, when the active-set method stops uncertified (numerically singular `H_FF`,
+//! iteration cap): projected Newton with a free-set reduced Hessian from its (feasible, never
+//! worse) point (Bertsekas 1982, "Projected Newton methods for optimization problems with simple
+//! constraints", SIAM J. Control Optim. 20(2)), [`projected_newton`]:
+//! 1. `grad = H x - g`; stop when the KKT conditions hold to `kkt_tol`.
 //! 2. Free set `F` = variables strictly inside, or at a bound with the gradient pointing inside.
 //! 3. Newton direction on `F`: `H_FF d_F = -grad_F` (Cholesky), `d = 0` elsewhere.
-//! 4. Projected Armijo search `x(a) = P(x + a d)`, `a = 1, 1/2, ...`.
-//!
-//! For a QP, once `F` is the optimal free set the full step lands exactly on the optimum, so the
-//! method terminates in a few iterations with the exact solution (to rounding), which the KKT test
-//! certifies. Should the Newton step fail (singular `H_FF` or no Armijo decrease) one exact
-//! coordinate-descent sweep is taken instead, which never increases `q`.
+//! 4. Projected Armijo search `x(a) = P(x + a d)`, `a = 1, 1/2, ...`; should the Newton step
+//!    fail one exact coordinate-descent sweep is taken instead, which never increases `q`.
 //!
 //! Departure from the paper: no epsilon-active set; bounds are hit exactly because every trial
 //! point is clamped, and the coordinate-descent fallback guarantees descent.
@@ -32,7 +41,8 @@
 /// Options of [`solve_box_qp`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct QpOptions {
-    /// Maximum projected-Newton iterations.
+    /// Maximum projected-Newton iterations (the active-set method allows `4x + 2n` working-set
+    /// changes).
     pub max_iterations: usize,
     /// KKT tolerance, relative to `max(1, max_i |g_i|, max_i H_ii)`.
     pub kkt_tol: f64,

@@ -87,6 +87,12 @@ fn no_allocation_per_frame() {
         .unwrap(),
         &frames,
     );
+    // mu = 0: the QP factor is carried between passes and frames (the reuse path)
+    count_allocs(
+        "exact, mu = 0",
+        &ExactSolver::new(&basis, ExactParams::default()).unwrap(),
+        &frames,
+    );
     count_allocs(
         "exact3d",
         &Exact3dSolver::new(
