@@ -210,8 +210,11 @@ impl ExpressionSolver for ExactSolver {
                 ws.g[i] = 2.0 * s2 * ws.dtb[i] + 2.0 * mu * state.weights[i] - obj.l1;
             }
             // with mu = 0, H = s^2 (2 G + ridge I): the previous factor is reusable, scaled
+            // (not on a cold start: the previous frame's working set is no guess for a new track)
             let reuse = match ws.qp_last {
-                Some((id, prev_s2)) if mu == 0.0 && id == self.id => Some(s2 / prev_s2),
+                Some((id, prev_s2)) if mu == 0.0 && id == self.id && (pass > 0 || state.has_previous) => {
+                    Some(s2 / prev_s2)
+                }
                 _ => None,
             };
             let o = solve_box_qp_reuse(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.x, &opts, &mut ws.qp, reuse);

@@ -446,6 +446,46 @@ pub fn active_set_reuse(
                     return finish(h, g, lo, hi, x, grad, 0, tol, false);
                 }
             }
+            // start from the clamped subspace minimiser instead of the vertex: a feasible point
+            // whose working set (the clamped variables, dropped from the factor) is usually
+            // close to the optimal one; any feasible start keeps the method exact
+            for _round in 0..4 {
+                let m = free.len();
+                if m == 0 {
+                    break;
+                }
+                u.fill(0.0);
+                for j in 0..n {
+                    if x[j] != 0.0 {
+                        axpy(x[j], &h[j * n..(j + 1) * n], u);
+                    }
+                }
+                for (a, &i) in free.iter().enumerate() {
+                    // x_F is at its bounds here; rhs = g_F - H_FB x_B = g_F - (H x)_F + H_FF x_F
+                    let mut hff = 0.0;
+                    for &j in free.iter() {
+                        hff += h[i * n + j] * x[j];
+                    }
+                    rhs[a] = g[i] - u[i] + hff;
+                }
+                chol_solve_strided(l, n, m, &mut rhs[..m]);
+                for (a, &i) in free.iter().enumerate() {
+                    x[i] = rhs[a].clamp(lo[i], hi[i]);
+                }
+                let mut k = free.len();
+                let mut dropped = false;
+                while k > 0 {
+                    k -= 1;
+                    let i = free[k];
+                    if x[i] <= lo[i] || x[i] >= hi[i] {
+                        chol_delete(n, free, l, k);
+                        dropped = true;
+                    }
+                }
+                if !dropped {
+                    break;
+                }
+            }
         }
     }
     let cap = 4 * opts.max_iterations + 2 * n;
