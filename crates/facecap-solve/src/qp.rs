@@ -13,7 +13,9 @@
 //! [`solve_box_qp`] runs the primal active-set method [`active_set`] (Nocedal & Wright 2006,
 //! "Numerical Optimization", Algorithm 16.3, specialised to bounds as Stark & Parker 1995's
 //! BVLS): the working set starts as the bounds active at the warm start (at a vertex, e.g. the
-//! cold start `x = 0`, every bound whose multiplier has the wrong sign is released at once); each
+//! cold start `x = 0`, every bound whose multiplier has the wrong sign is released at once and
+//! the method starts from the clamped subspace minimiser of that free set, repeated while it
+//! clamps; any feasible start with its active bounds as working set keeps the method exact); each
 //! iteration solves the equality-constrained problem on the free set `F` with the Cholesky factor
 //! of `H_FF`, updated by one-row appends and Givens deletions (`O(m^2)`, no refactorisation),
 //! steps to the first blocking bound (added to the working set) or, at a subspace minimiser,
