@@ -5,7 +5,12 @@
 //! as dlib's driver. Prints wall time per solve (mean, median, min) and the process CPU time per
 //! solve (from /proc/self/stat over the whole loop), plus evaluations.
 //!
-//! `cargo run --release -p facecap-solve --example bobyqa_timing [-- REPS]`
+//! With a second argument, the problem file the anchor `shared/anchors/bench_bobyqa_fit.py` writes
+//! for dlib's driver (`data/bobyqa_problem.bin`: the anchor's own shapes and problems) is solved
+//! instead, with exactly the anchor's objective `||neutral + D^T w - obs||^2 + lambda sum |w|`
+//! (no alignment; evaluated through the Gram matrix, same values) and the same two passes.
+//!
+//! `cargo run --release -p facecap-solve --example bobyqa_timing [-- REPS [ANCHOR_PROBLEM.bin]]`
 
 use std::time::Instant;
 
@@ -32,8 +37,120 @@ fn cpu_seconds() -> f64 {
     (ticks(11) + ticks(12)) / 100.0
 }
 
+fn anchor_problem(reps: usize, path: &str) {
+    let b = std::fs::read(path).unwrap();
+    let mut off = 0usize;
+    let mut i32_ = || {
+        let v = i32::from_le_bytes(b[off..off + 4].try_into().unwrap());
+        off += 4;
+        v as usize
+    };
+    let (p, m, k, _r, warm) = (i32_(), i32_(), i32_(), i32_(), i32_());
+    let rd = |off: &mut usize, n: usize| -> Vec<f64> {
+        let v = (0..n)
+            .map(|j| f64::from_le_bytes(b[*off + 8 * j..*off + 8 * j + 8].try_into().unwrap()))
+            .collect();
+        *off += 8 * n;
+        v
+    };
+    let hdr = rd(&mut off, 4);
+    let (lambda, rho_begin, rho_end) = (hdr[0], hdr[1], [hdr[2], hdr[3]]);
+    let npt = i32::from_le_bytes(b[off..off + 4].try_into().unwrap()) as usize;
+    let max_evals = i32::from_le_bytes(b[off + 4..off + 8].try_into().unwrap()) as usize;
+    off += 8;
+    let neutral = rd(&mut off, m);
+    let d = rd(&mut off, k * m);
+    let obs = rd(&mut off, p * m);
+    let x0 = rd(&mut off, p * k);
+    let mut gram = vec![0.0; k * k];
+    for a in 0..k {
+        for c in 0..k {
+            gram[a * k + c] = (0..m).map(|j| d[a * m + j] * d[c * m + j]).sum();
+        }
+    }
+    let mk = |re: f64| {
+        let mut c = bobyqa::Config::new(k);
+        c.npt = npt;
+        c.rho_begin = rho_begin;
+        c.rho_end = re;
+        c.max_fun = max_evals;
+        bobyqa::Bobyqa::new(k, c).unwrap()
+    };
+    let mut engines = [mk(rho_end[0]), mk(rho_end[1])];
+    let (lo, hi) = (vec![0.0; k], vec![1.0; k]);
+    let (mut t, mut evals, mut fs) = (Vec::new(), Vec::new(), Vec::new());
+    let mut x = vec![0.0; k];
+    let mut dtb = vec![0.0; k];
+    let c0 = cpu_seconds();
+    for rep in 0..=reps {
+        for q in 0..p {
+            // b = obs - neutral; f(w) = w^T G w - 2 w^T D b + b^T b + lambda sum w
+            let bq: Vec<f64> = (0..m).map(|j| obs[q * m + j] - neutral[j]).collect();
+            let bb: f64 = bq.iter().map(|v| v * v).sum();
+            for a in 0..k {
+                dtb[a] = (0..m).map(|j| d[a * m + j] * bq[j]).sum();
+            }
+            if warm != 0 {
+                x.copy_from_slice(&x0[q * k..(q + 1) * k]);
+            } else {
+                x.fill(0.0);
+            }
+            let t0 = Instant::now();
+            let mut ev = 0;
+            let mut f = 0.0;
+            for e in engines.iter_mut() {
+                let o = e.minimize(
+                    |w: &[f64]| {
+                        let mut s = bb;
+                        for a in 0..k {
+                            let gw: f64 = (0..k).map(|c| gram[a * k + c] * w[c]).sum();
+                            s += w[a] * (gw - 2.0 * dtb[a]) + lambda * w[a].abs();
+                        }
+                        s
+                    },
+                    &mut x,
+                    &lo,
+                    &hi,
+                );
+                ev += o.n_eval;
+                f = o.f;
+            }
+            if rep > 0 {
+                t.push(t0.elapsed().as_secs_f64() * 1e6);
+                evals.push(ev);
+                fs.push(f);
+            }
+        }
+    }
+    let cpu = (cpu_seconds() - c0) * 1e6 / (t.len() + p) as f64;
+    let mean = t.iter().sum::<f64>() / t.len() as f64;
+    t.sort_by(f64::total_cmp);
+    evals.sort_unstable();
+    fs.sort_by(f64::total_cmp);
+    println!(
+        "our BOBYQA (bobyqa crate, two passes) on the anchor's problem file: {p} problems x {reps} reps, {} start:",
+        if warm != 0 { "warm" } else { "cold" }
+    );
+    println!(
+        "  wall per solve: mean {mean:.0} us, median {:.0} us, min {:.0} us; process CPU per solve (mean, incl. warm-up pass) {cpu:.0} us",
+        t[t.len() / 2],
+        t[0]
+    );
+    println!(
+        "  evaluations per solve: median {} (range {}-{}); final objective median {:.2}",
+        evals[evals.len() / 2],
+        evals[0],
+        evals[evals.len() - 1],
+        fs[fs.len() / 2]
+    );
+}
+
 fn main() {
     let reps: usize = std::env::args().nth(1).map_or(20, |s| s.parse().unwrap());
+    if let Some(path) = std::env::args().nth(2) {
+        anchor_problem(reps, &path);
+        return;
+    }
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../testdata/solve/bobyqa_dlib_fixture.json"
