@@ -1,8 +1,11 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Pyramidal LK per-frame cost at 640x480: pyramid build (one frame), tracking
 //! 68 / 500 points with pyramids ready, and both together (the steady per-frame
-//! cost of a video tracker). Frames: liveportrait_d9 (shared data) edge-padded to
-//! 640x480 like the OpenCV anchor (`bench_cv_lk.py`); a synthetic texture if absent.
+//! cost of a video tracker: `push_frame_and_track_*`, wall and thread-CPU time).
+//! Frames: the first 40 of liveportrait_d9 (shared data) padded to 640x480 like the
+//! OpenCV anchor; a synthetic texture if absent. Points: Halton points in the face
+//! area. `testdata/opencv_lk/bench_cv_lk_same_inputs.py` times OpenCV's
+//! `calcOpticalFlowPyrLK` on exactly these frames and points.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use facecap_landmarks::lk::{LkParams, LkWorkspace, PyramidLk, TrackStatus};
@@ -70,6 +73,14 @@ fn points(n: usize) -> Vec<Point2<f64>> {
         .collect()
 }
 
+/// CPU time of the calling thread (nanoseconds from `/proc/thread-self/schedstat`).
+fn thread_cpu() -> Option<std::time::Duration> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    Some(std::time::Duration::from_nanos(
+        s.split_whitespace().next()?.parse().ok()?,
+    ))
+}
+
 fn bench(c: &mut Criterion) {
     let frames = frames();
     let lk = PyramidLk::new(LkParams::default()).unwrap();
@@ -106,6 +117,21 @@ fn bench(c: &mut Criterion) {
                 lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap()
             })
         });
+        if thread_cpu().is_some() {
+            // The same work timed by the thread's CPU clock (compare with the OpenCV
+            // script's thread-CPU column when the machine is loaded).
+            g.bench_function(format!("push_frame_and_track_{n}pts_cpu"), |b| {
+                b.iter_custom(|iters| {
+                    let c0 = thread_cpu().unwrap_or_default();
+                    for _ in 0..iters {
+                        k = (k + 1) % frames.len();
+                        ws.push_frame(&frames[k]).unwrap();
+                        lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
+                    }
+                    thread_cpu().unwrap_or_default().saturating_sub(c0)
+                })
+            });
+        }
     }
     g.finish();
 }

@@ -24,10 +24,14 @@
 //!   directions, integer arithmetic with round-half-up (`(s + 128) >> 8`),
 //!   `BORDER_REFLECT_101`, level size `((w+1)/2, (h+1)/2)`. Levels stop early
 //!   when the next level would be no larger than the window (as OpenCV's
-//!   `buildOpticalFlowPyramid`). Each level is stored with a reflect-101 border
-//!   of `window` pixels so windows near the edge read valid data.
+//!   `buildOpticalFlowPyramid`). Each level is stored with a border (the window
+//!   side rounded up to 8, plus 32) whose inner `window + 2` columns / rows hold
+//!   reflect-101 values, so windows near the edge read valid data.
 //! * Gradients: Scharr `[3 10 3]ᵀ ⊗ [-1 0 1]` (and transposed) in 16-bit integers,
-//!   i.e. 32x the central-difference gradient; zero outside the image.
+//!   i.e. 32x the central-difference gradient; zero outside the image. OpenCV
+//!   differentiates every level of the previous frame; we compute them only for the
+//!   `(window + 1)²` pixels each point needs at each level (identical values), which
+//!   for sparse points is far cheaper and lets the pyramid skip the gradient pass.
 //! * Sub-pixel sampling: bilinear with 14-bit fixed-point weights
 //!   `iw00 = round((1-a)(1-b)·2¹⁴)` (round half to even, as `cvRound`),
 //!   `iw11 = 2¹⁴ - iw00 - iw01 - iw10`; intensities keep 5 fractional bits,
@@ -41,6 +45,20 @@
 //!   `I` and `J` at the final position, in grey levels (OpenCV's `err`).
 //! * Point coordinates are processed in `f32` like OpenCV (the API takes and
 //!   returns `f64`; inputs are rounded to `f32` first).
+//!
+//! # Implementation (speed)
+//!
+//! The window loops use 128-bit SIMD through the safe `wide` crate (SSE2 on
+//! x86-64, NEON on aarch64, scalar elsewhere), as OpenCV's SSE2 path does: window
+//! rows are processed 8 columns at a time (the window side is padded to a multiple
+//! of 8, padding lanes masked to zero); for 8 columns the two 8-byte loads at `x`
+//! and `x + 1` of an image row, zero-extended to `i16`, are exactly the pixel pairs
+//! `(p[x+2k], p[x+2k+1])` (even columns) and `(p[x+2k+1], p[x+2k+2])` (odd columns),
+//! so every bilinear sum is one `pmaddwd` lane with the weight pairs; the stored
+//! window therefore holds each chunk's even columns before its odd ones, which no
+//! window sum can see. Per frame only the pyramid is built (vertical-first
+//! `pyrDown`, borders filled only as far as windows reach); no allocation once
+//! frame sizes are stable.
 //!
 //! Coordinates are 0-based pixel centres (top-left pixel centre is `(0, 0)`).
 //!
