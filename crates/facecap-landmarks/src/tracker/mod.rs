@@ -9,29 +9,29 @@
 //! 2. **Not tracking** (first frame, or the face was lost): run the detector, take
 //!    the largest face, run ERT from the mean shape in that box.
 //! 3. **Tracking** (no detector):
-//!    a. *Cheap motion test*: one Gauss-Newton step of translation-only LK over the
-//!       previous landmarks' bounding box (+10 %) on a 4-px grid, with
-//!       central-difference gradients of the previous frame, `d = -G⁻¹ b`
-//!       (`G = Σ ∇I ∇Iᵀ`, `b = Σ (J - I) ∇I`), plus the RMS of the grey-level
-//!       change this translation leaves unexplained. About 0.4 M instructions per
-//!       frame, against ~10 M for pyramids + LK.
-//!    b. If `|d| > lk_motion_threshold` or the unexplained RMS exceeds 12 grey
-//!       levels (not a small shift: a cut, a flat frame, fast motion), LK carries
-//!       the 21 rigid landmarks (nose 27-35, eyes 36-47) to this frame. If fewer than
-//!       `min_lk_fraction` of them are tracked the face is lost and we fall back to
-//!       step 2. When their median LK motion exceeds `lk_motion_threshold` px, the
-//!       least-squares similarity from their previous to their LK positions moves
-//!       all 68 previous landmarks ("LK carries the face"); else the previous shape
-//!       is used as is. Otherwise (small motion) LK does not run and the previous
-//!       shape is used as is.
-//!    c. The ERT box is derived from this initial shape by the **dlib-like box
-//!       rule**: the square box in which the ERT mean shape best fits the shape
-//!       (least squares over `l`, `t` and one scale `s` in `x ≈ l + s·u`,
-//!       `y ≈ t + s·v`, `(u, v)` the mean shape in box units) — i.e. the box the
-//!       detector would have had to give for the face to sit like the mean face.
-//!       ERT then runs from the mean shape in that box ([`ErtInit::MeanShapeInBox`],
-//!       default: dlib's initialisation with a tracked box) or from the carried
-//!       shape itself ([`ErtInit::PreviousShape`], which drifts).
+//!    - *Cheap motion test*: one Gauss-Newton step of translation-only LK over the
+//!      previous landmarks' bounding box (+10 %) on a 4-px grid, with
+//!      central-difference gradients of the previous frame, `d = -G⁻¹ b`
+//!      (`G = Σ ∇I ∇Iᵀ`, `b = Σ (J - I) ∇I`), plus the RMS of the grey-level
+//!      change this translation leaves unexplained. About 0.4 M instructions per
+//!      frame, against ~5 M for the two pyramids + LK on 21 points.
+//!    - If `|d| > lk_motion_threshold` or the unexplained RMS exceeds 12 grey
+//!      levels (not a small shift: a cut, a flat frame, fast motion), LK carries
+//!      the 21 rigid landmarks (nose 27-35, eyes 36-47) to this frame. If fewer than
+//!      `min_lk_fraction` of them are tracked the face is lost and we fall back to
+//!      step 2. When their median LK motion exceeds `lk_motion_threshold` px, the
+//!      least-squares similarity from their previous to their LK positions moves
+//!      all 68 previous landmarks ("LK carries the face"); else the previous shape
+//!      is used as is. Otherwise (small motion) LK does not run and the previous
+//!      shape is used as is.
+//!    - The ERT box is derived from this initial shape by the **dlib-like box
+//!      rule**: the square box in which the ERT mean shape best fits the shape
+//!      (least squares over `l`, `t` and one scale `s` in `x ≈ l + s·u`,
+//!      `y ≈ t + s·v`, `(u, v)` the mean shape in box units) — i.e. the box the
+//!      detector would have had to give for the face to sit like the mean face.
+//!      ERT then runs from the mean shape in that box ([`ErtInit::MeanShapeInBox`],
+//!      default: dlib's initialisation with a tracked box) or from the carried
+//!      shape itself ([`ErtInit::PreviousShape`], which drifts).
 //! 4. **Confidence** in `[0, 1]`: `lk_fraction · exp(-d_agree / agree_scale) ·
 //!    exp(-max(0, r_shape - shape_tolerance) / shape_scale)`, where `d_agree` is the
 //!    mean distance between ERT's and LK's positions of the LK-tracked points
