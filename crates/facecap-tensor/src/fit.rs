@@ -206,6 +206,11 @@ pub struct FitWorkspace {
     texp: Vec<f64>,
     /// Per point, the core contracted with the expression modes: `[N][3][r_id]`.
     tid: Vec<f64>,
+    /// The weights `pts` were computed for (valid when `pts_valid`): a warm-started
+    /// call on an unchanged state skips recomputing the points.
+    pts_w_id: Vec<f64>,
+    pts_w_exp: Vec<f64>,
+    pts_valid: bool,
 }
 
 /// The fitter: a tensor model restricted to the fitted vertices (immutable, `Send + Sync`).
@@ -213,7 +218,7 @@ pub struct FitWorkspace {
 pub struct Fitter {
     params: FitParams,
     vertices: Vec<u32>,
-    /// `[N][3][r_id][r_exp]`
+    /// `[N][3][r_exp][r_id]` (per point and coordinate, the core slice transposed).
     core: Vec<f64>,
     /// `[N][3]`
     mean: Vec<f64>,
@@ -298,7 +303,9 @@ impl Fitter {
         for &v in vertices {
             for c in 0..3 {
                 let p = 3 * v as usize + c;
-                core.extend(model.core.slice(ndarray::s![p, .., ..]).iter());
+                // Stored transposed, [r_exp][r_id]: both contractions then run over
+                // contiguous length-r_id rows (axpy for `C beta`, dot for `alpha^T C`).
+                core.extend(model.core.slice(ndarray::s![p, .., ..]).t().iter());
                 mean.push(model.mean[p]);
             }
         }
@@ -368,6 +375,9 @@ impl Fitter {
             depth_backup: vec![0.0; n],
             texp: vec![0.0; n * 3 * self.r_exp],
             tid: vec![0.0; n * 3 * self.r_id],
+            pts_w_id: vec![0.0; self.ni],
+            pts_w_exp: vec![0.0; self.ne],
+            pts_valid: false,
         }
     }
 
@@ -414,8 +424,8 @@ impl Fitter {
     fn update_points(&self, state: &FitState, ws: &mut FitWorkspace) {
         self.update_modes(state, ws);
         // p = m + <core_row, alpha kron beta>: one long contiguous dot per coordinate.
-        for (a, chunk) in ws.alpha.iter().zip(ws.ab.chunks_exact_mut(self.r_exp)) {
-            for (o, b) in chunk.iter_mut().zip(&ws.beta) {
+        for (b, chunk) in ws.beta.iter().zip(ws.ab.chunks_exact_mut(self.r_id)) {
+            for (o, a) in chunk.iter_mut().zip(&ws.alpha) {
                 *o = a * b;
             }
         }
@@ -426,28 +436,43 @@ impl Fitter {
                 p[c] = self.mean[3 * k + c] + dot(row, &ws.ab);
             }
         }
+        self.record_points(state, ws);
+    }
+
+    /// Notes that `ws.pts` hold the points of the state's weights.
+    fn record_points(&self, state: &FitState, ws: &mut FitWorkspace) {
+        ws.pts_w_id.copy_from_slice(&state.w_id);
+        ws.pts_w_exp.copy_from_slice(&state.w_exp);
+        ws.pts_valid = true;
+    }
+
+    /// `ws.pts` for the state's weights: recomputed unless they already are.
+    fn ensure_points(&self, state: &FitState, ws: &mut FitWorkspace) {
+        if !(ws.pts_valid && ws.pts_w_id == state.w_id && ws.pts_w_exp == state.w_exp) {
+            self.update_points(state, ws);
+        }
     }
 
     /// `texp[k][c] = alpha^T C_kc` (the core of point `k`, coordinate `c`, contracted
     /// with the identity modes) for every point; `ws.alpha` must be current.
     fn contract_exp(&self, ws: &mut FitWorkspace) {
-        let (re, blk) = (self.r_exp, self.r_id * self.r_exp);
+        let (ri, re, blk) = (self.r_id, self.r_exp, self.r_id * self.r_exp);
         for (core, out) in self.core.chunks_exact(blk).zip(ws.texp.chunks_exact_mut(re)) {
-            out.iter_mut().for_each(|o| *o = 0.0);
-            for (al, row) in ws.alpha.iter().zip(core.chunks_exact(re)) {
-                for (o, cv) in out.iter_mut().zip(row) {
-                    *o += al * cv;
-                }
+            for (o, row) in out.iter_mut().zip(core.chunks_exact(ri)) {
+                *o = dot(row, &ws.alpha);
             }
         }
     }
 
     /// `tid[k][c] = C_kc beta` for every point; `ws.beta` must be current.
     fn contract_id(&self, ws: &mut FitWorkspace) {
-        let (re, ri, blk) = (self.r_exp, self.r_id, self.r_id * self.r_exp);
+        let (ri, blk) = (self.r_id, self.r_id * self.r_exp);
         for (core, out) in self.core.chunks_exact(blk).zip(ws.tid.chunks_exact_mut(ri)) {
-            for (o, row) in out.iter_mut().zip(core.chunks_exact(re)) {
-                *o = dot(row, &ws.beta);
+            out.iter_mut().for_each(|o| *o = 0.0);
+            for (b, row) in ws.beta.iter().zip(core.chunks_exact(ri)) {
+                for (o, cv) in out.iter_mut().zip(row) {
+                    *o += b * cv;
+                }
             }
         }
     }
@@ -700,6 +725,7 @@ impl Fitter {
         res?;
         mat_t_vec(&self.u_exp, self.ne, self.r_exp, &state.w_exp, &mut ws.beta);
         self.points_from(Block::Exp, ws);
+        self.record_points(state, ws);
         Ok(())
     }
 
@@ -715,6 +741,7 @@ impl Fitter {
         res?;
         mat_t_vec(&self.u_id, self.ni, self.r_id, &state.w_id, &mut ws.alpha);
         self.points_from(Block::Id, ws);
+        self.record_points(state, ws);
         Ok(())
     }
 
@@ -734,7 +761,7 @@ impl Fitter {
     /// weighted points; [`Error::Numerical`] for degenerate geometry.
     pub fn solve_into(&self, input: &FitInput, ws: &mut FitWorkspace, state: &mut FitState) -> Result<FitReport> {
         self.check_input(input, state)?;
-        self.update_points(state, ws);
+        self.ensure_points(state, ws);
         self.pose_step(input, state, ws)?;
         // ws.pts holds the points of the state's weights from here on: every step
         // below updates them from its own contraction.
