@@ -198,31 +198,27 @@ fn betas_n4(l: &Matrix6x10, rho: &Vector6) -> Option<[f64; 4]> {
     Some([b0, s * b[1] / b0, s * b[2] / b0, s * b[3] / b0])
 }
 
+/// `(b1, b2)` from the linear estimates of `b11`, `b12`, `b22` (N = 2 and N = 3 cases).
+fn leading_betas(b11: f64, b12: f64, b22: f64) -> (f64, f64) {
+    let (b0, b1) = if b11 < 0.0 {
+        ((-b11).sqrt(), if b22 < 0.0 { (-b22).sqrt() } else { 0.0 })
+    } else {
+        (b11.sqrt(), if b22 > 0.0 { b22.sqrt() } else { 0.0 })
+    };
+    (if b12 < 0.0 { -b0 } else { b0 }, b1)
+}
+
 /// N = 2: `[b11, b12, b22]` linearly.
 fn betas_n2(l: &Matrix6x10, rho: &Vector6) -> Option<[f64; 4]> {
     let b = lsq_columns(l, [0, 1, 2], rho)?;
-    let (mut b0, b1) = if b[0] < 0.0 {
-        ((-b[0]).sqrt(), if b[2] < 0.0 { (-b[2]).sqrt() } else { 0.0 })
-    } else {
-        (b[0].sqrt(), if b[2] > 0.0 { b[2].sqrt() } else { 0.0 })
-    };
-    if b[1] < 0.0 {
-        b0 = -b0;
-    }
+    let (b0, b1) = leading_betas(b[0], b[1], b[2]);
     Some([b0, b1, 0.0, 0.0])
 }
 
 /// N = 3: `[b11, b12, b22, b13, b23]` linearly.
 fn betas_n3(l: &Matrix6x10, rho: &Vector6) -> Option<[f64; 4]> {
     let b = lsq_columns(l, [0, 1, 2, 3, 4], rho)?;
-    let (mut b0, b1) = if b[0] < 0.0 {
-        ((-b[0]).sqrt(), if b[2] < 0.0 { (-b[2]).sqrt() } else { 0.0 })
-    } else {
-        (b[0].sqrt(), if b[2] > 0.0 { b[2].sqrt() } else { 0.0 })
-    };
-    if b[1] < 0.0 {
-        b0 = -b0;
-    }
+    let (b0, b1) = leading_betas(b[0], b[1], b[2]);
     if b0 == 0.0 {
         return None;
     }
@@ -308,13 +304,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn face_like_points(rng: &mut ChaCha8Rng, n: usize) -> Vec<Point3<f64>> {
-        (0..n)
-            .map(|_| {
-                let x: f64 = rng.random_range(-7.0..7.0);
-                let y: f64 = rng.random_range(-9.0..6.0);
-                Point3::new(x, y, 4.0 - 0.06 * x * x - 0.03 * y * y + rng.random_range(-0.5..0.5))
-            })
-            .collect()
+        crate::pnp::tests::face_like_points_n(rng, n)
     }
 
     #[test]

@@ -325,13 +325,18 @@ pub fn solve_pnp(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
     fn face_like_points(rng: &mut ChaCha8Rng) -> Vec<Point3<f64>> {
-        (0..68)
+        face_like_points_n(rng, 68)
+    }
+
+    /// `n` random points on a face-like surface (shared with the EPnP tests).
+    pub(crate) fn face_like_points_n(rng: &mut ChaCha8Rng, n: usize) -> Vec<Point3<f64>> {
+        (0..n)
             .map(|_| {
                 let x: f64 = rng.random_range(-7.0..7.0);
                 let y: f64 = rng.random_range(-9.0..6.0);
