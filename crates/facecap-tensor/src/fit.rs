@@ -192,8 +192,10 @@ pub struct FitWorkspace {
     beta: Vec<f64>,
     ab: Vec<f64>,
     pts: Vec<Point3<f64>>,
-    row0: Vec<f64>,
-    row1: Vec<f64>,
+    /// Design rows of the block being accumulated: `[N][2][r]` (two image rows per
+    /// weighted point, contiguous), and each point's weight `w_k / sum w`.
+    design: Vec<f64>,
+    design_w: Vec<f64>,
     h: Vec<f64>,
     g: Vec<f64>,
     hdb: Vec<f64>,
@@ -363,8 +365,8 @@ impl Fitter {
             beta: vec![0.0; self.r_exp],
             ab: vec![0.0; self.r_id * self.r_exp],
             pts: vec![Point3::origin(); n],
-            row0: vec![0.0; r],
-            row1: vec![0.0; r],
+            design: vec![0.0; 2 * n * r],
+            design_w: vec![0.0; n],
             h: vec![0.0; r * r],
             g: vec![0.0; r],
             hdb: vec![0.0; d * d],
@@ -468,8 +470,25 @@ impl Fitter {
     fn contract_id(&self, ws: &mut FitWorkspace) {
         let (ri, blk) = (self.r_id, self.r_id * self.r_exp);
         for (core, out) in self.core.chunks_exact(blk).zip(ws.tid.chunks_exact_mut(ri)) {
+            // Four expression modes per pass over `out` (one load/store per four rows).
+            let rows4 = core.chunks_exact(4 * ri);
+            let rest = rows4.remainder();
+            let b4 = ws.beta.chunks_exact(4);
+            let brest = b4.remainder();
             out.iter_mut().for_each(|o| *o = 0.0);
-            for (b, row) in ws.beta.iter().zip(core.chunks_exact(ri)) {
+            let n = out.len();
+            for (rows, b) in rows4.zip(b4) {
+                let (c0, c1, c2, c3) = (
+                    &rows[..n],
+                    &rows[ri..ri + n],
+                    &rows[2 * ri..2 * ri + n],
+                    &rows[3 * ri..3 * ri + n],
+                );
+                for j in 0..n {
+                    out[j] += (b[0] * c0[j] + b[1] * c1[j]) + (b[2] * c2[j] + b[3] * c3[j]);
+                }
+            }
+            for (b, row) in brest.iter().zip(rest.chunks_exact(ri)) {
                 for (o, cv) in out.iter_mut().zip(row) {
                     *o += b * cv;
                 }
@@ -595,6 +614,10 @@ impl Fitter {
 
     /// Adds `scale * (A^T A, A^T y)` of one frame for `block` into `ws.h`, `ws.g`
     /// (upper triangle of `h` only). The other block's modes must be in `ws.alpha`/`ws.beta`.
+    ///
+    /// The design rows of all weighted points are first written contiguously into
+    /// `ws.design` (`A^T y` is summed on the way), then `A^T W A` is formed by
+    /// [`syrk_upper`], a blocked rank-8 update over those rows.
     fn accumulate(&self, block: Block, input: &FitInput, state: &FitState, ws: &mut FitWorkspace, scale: f64) {
         let Some(pose) = state.pose else { return };
         let r = match block {
@@ -606,36 +629,49 @@ impl Fitter {
         let t = pose.0.translation.vector;
         let k = &input.intrinsics;
         let sw: f64 = input.weights.iter().sum();
+        let tall = match block {
+            Block::Exp => &ws.texp,
+            Block::Id => &ws.tid,
+        };
+        let g = &mut ws.g[..r];
+        let mut m = 0;
         for (idx, ((x, &w), &z)) in input.image.iter().zip(input.weights).zip(&state.depth).enumerate() {
             if w <= 0.0 {
                 continue;
             }
             let wk = scale * w / sw;
             // The core of this point contracted with the fixed block (precomputed).
-            let tcon = match block {
-                Block::Exp => &ws.texp[3 * idx * r..3 * (idx + 1) * r],
-                Block::Id => &ws.tid[3 * idx * r..3 * (idx + 1) * r],
-            };
-            let m = [self.mean[3 * idx], self.mean[3 * idx + 1], self.mean[3 * idx + 2]];
+            let tcon = &tall[3 * idx * r..3 * (idx + 1) * r];
+            let (t0s, rest) = tcon.split_at(r);
+            let (t1s, t2s) = rest.split_at(r);
+            let m3 = [self.mean[3 * idx], self.mean[3 * idx + 1], self.mean[3 * idx + 2]];
             let qx = (x.x - k.cx) * z / k.fx;
             let qy = (x.y - k.cy) * z / k.fy;
-            let y0 = qx - (rm[(0, 0)] * m[0] + rm[(0, 1)] * m[1] + rm[(0, 2)] * m[2] + t.x);
-            let y1 = qy - (rm[(1, 0)] * m[0] + rm[(1, 1)] * m[1] + rm[(1, 2)] * m[2] + t.y);
-            for j in 0..r {
-                let (t0, t1, t2) = (tcon[j], tcon[r + j], tcon[2 * r + j]);
-                ws.row0[j] = rm[(0, 0)] * t0 + rm[(0, 1)] * t1 + rm[(0, 2)] * t2;
-                ws.row1[j] = rm[(1, 0)] * t0 + rm[(1, 1)] * t1 + rm[(1, 2)] * t2;
+            let y0 = qx - (rm[(0, 0)] * m3[0] + rm[(0, 1)] * m3[1] + rm[(0, 2)] * m3[2] + t.x);
+            let y1 = qy - (rm[(1, 0)] * m3[0] + rm[(1, 1)] * m3[1] + rm[(1, 2)] * m3[2] + t.y);
+            let (r0, r1) = ws.design[2 * m * r..2 * (m + 1) * r].split_at_mut(r);
+            let (a00, a01, a02) = (rm[(0, 0)], rm[(0, 1)], rm[(0, 2)]);
+            let (a10, a11, a12) = (rm[(1, 0)], rm[(1, 1)], rm[(1, 2)]);
+            for (((((o0, o1), &t0), &t1), &t2), gv) in r0
+                .iter_mut()
+                .zip(r1.iter_mut())
+                .zip(t0s)
+                .zip(t1s)
+                .zip(t2s)
+                .zip(g.iter_mut())
+            {
+                let (v0, v1) = (a00 * t0 + a01 * t1 + a02 * t2, a10 * t0 + a11 * t1 + a12 * t2);
+                *o0 = v0;
+                *o1 = v1;
+                *gv += (wk * v0) * y0 + (wk * v1) * y1;
             }
-            let (r0, r1) = (&ws.row0[..r], &ws.row1[..r]);
-            for i in 0..r {
-                let (a0, a1) = (wk * r0[i], wk * r1[i]);
-                let hrow = &mut ws.h[i * r + i..(i + 1) * r];
-                for ((hv, b0), b1) in hrow.iter_mut().zip(&r0[i..]).zip(&r1[i..]) {
-                    *hv += a0 * b0 + a1 * b1;
-                }
-                ws.g[i] += a0 * y0 + a1 * y1;
-            }
+            ws.design_w[m] = wk;
+            m += 1;
         }
+        let (d, dw, h) = (&ws.design[..2 * m * r], &ws.design_w[..m], &mut ws.h[..r * r]);
+        // Runtime CPU dispatch (AVX2 when available): the same additions in the same
+        // order, only wider vectors (no FMA contraction), so the result is unchanged.
+        pulp::Arch::new().dispatch(Syrk { d, w: dw, r, h });
     }
 
     /// Solves the block from `ws.h` (upper triangle of `A^T A`) and `ws.g` with prior
@@ -671,13 +707,13 @@ impl Fitter {
             Method::NonNegative => {
                 // H_db = U H U^T + lambda I ; f = -(U g + lambda w0)
                 let tmp = &mut ws.tmp[..d * r];
-                for i in 0..d {
-                    for k in 0..r {
-                        let mut acc = 0.0;
-                        for l in 0..r {
-                            acc += u[i * r + l] * h[l * r + k];
+                // tmp = U H, row by row as axpys over the contiguous rows of `h`.
+                for (trow, urow) in tmp.chunks_exact_mut(r).zip(u.chunks_exact(r)) {
+                    trow.iter_mut().for_each(|v| *v = 0.0);
+                    for (&ul, hrow) in urow.iter().zip(h.chunks_exact(r)) {
+                        for (tv, hv) in trow.iter_mut().zip(hrow) {
+                            *tv += ul * hv;
                         }
-                        tmp[i * r + k] = acc;
                     }
                 }
                 let hdb = &mut ws.hdb[..d * d];
@@ -910,6 +946,58 @@ impl Fitter {
         self.update_points(state, ws);
         out.clear();
         out.extend_from_slice(&ws.pts);
+    }
+}
+
+/// Adds `sum_k w_k (a_k0 a_k0^T + a_k1 a_k1^T)` to the upper triangle of the row-major
+/// `r x r` matrix `h`, where `d` holds the rows `[M][2][r]` and `w` the `M` weights.
+/// Four points (eight rows) per pass over `h`, so each element of `h` is loaded and
+/// stored once per eight rows; the inner loops run over contiguous equal-length slices.
+/// [`syrk_upper`] as a [`pulp::WithSimd`] operation, compiled for the dispatched CPU level.
+struct Syrk<'a> {
+    d: &'a [f64],
+    w: &'a [f64],
+    r: usize,
+    h: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Syrk<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        syrk_upper(self.d, self.w, self.r, self.h);
+    }
+}
+
+#[inline(always)]
+fn syrk_upper(d: &[f64], w: &[f64], r: usize, h: &mut [f64]) {
+    let blocks = d.chunks_exact(8 * r);
+    let rem = blocks.remainder();
+    let wblocks = w.chunks_exact(4);
+    let wrem = wblocks.remainder();
+    for (blk, wq) in blocks.zip(wblocks) {
+        let rows: [&[f64]; 8] = std::array::from_fn(|q| &blk[q * r..(q + 1) * r]);
+        for i in 0..r {
+            let a: [f64; 8] = std::array::from_fn(|q| wq[q / 2] * rows[q][i]);
+            let hrow = &mut h[i * r + i..(i + 1) * r];
+            let n = hrow.len();
+            let s: [&[f64]; 8] = std::array::from_fn(|q| &rows[q][i..i + n]);
+            for j in 0..n {
+                hrow[j] += ((a[0] * s[0][j] + a[1] * s[1][j]) + (a[2] * s[2][j] + a[3] * s[3][j]))
+                    + ((a[4] * s[4][j] + a[5] * s[5][j]) + (a[6] * s[6][j] + a[7] * s[7][j]));
+            }
+        }
+    }
+    for (pair, &wk) in rem.chunks_exact(2 * r).zip(wrem) {
+        let (r0, r1) = pair.split_at(r);
+        for i in 0..r {
+            let (a0, a1) = (wk * r0[i], wk * r1[i]);
+            let hrow = &mut h[i * r + i..(i + 1) * r];
+            for ((hv, b0), b1) in hrow.iter_mut().zip(&r0[i..]).zip(&r1[i..]) {
+                *hv += a0 * b0 + a1 * b1;
+            }
+        }
     }
 }
 
