@@ -69,6 +69,21 @@ fn face_width(rig: &BlendshapeRig) -> f64 {
     (hi - lo).max(1e-9)
 }
 
+/// Camera depth at which the face spans ~35 % of the image width, and the model centre
+/// (the mapped landmarks' mean), shared by [`generate`] and [`trajectory`].
+fn framing(rig: &BlendshapeRig, camera: &Intrinsics, width: f64) -> (f64, Vector3<f64>) {
+    let depth = camera.fx * face_width(rig) / (0.35 * width);
+    let mut centre = Vector3::zeros();
+    let mut cnt = 0.0;
+    for l in 0..NUM_LANDMARKS {
+        if rig.mapped[l] {
+            centre += Vector3::new(rig.neutral[[l, 0]], rig.neutral[[l, 1]], rig.neutral[[l, 2]]);
+            cnt += 1.0;
+        }
+    }
+    (depth, centre / cnt)
+}
+
 /// Generates `count` frames (seeded) for `rig` seen by `camera` in a `width`-pixel-wide image.
 pub fn generate(
     rig: &BlendshapeRig,
@@ -80,19 +95,7 @@ pub fn generate(
 ) -> Vec<SynthFrame> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let n = rig.num_shapes();
-    let fw = face_width(rig);
-    // depth so that the face spans ~35 % of the image width
-    let depth = camera.fx * fw / (0.35 * width);
-    // model centre (mapped landmarks' mean)
-    let mut centre = Vector3::zeros();
-    let mut cnt = 0.0;
-    for l in 0..NUM_LANDMARKS {
-        if rig.mapped[l] {
-            centre += Vector3::new(rig.neutral[[l, 0]], rig.neutral[[l, 1]], rig.neutral[[l, 2]]);
-            cnt += 1.0;
-        }
-    }
-    centre /= cnt;
+    let (depth, centre) = framing(rig, camera, width);
     let mut frames = Vec::with_capacity(count);
     for _ in 0..count {
         let mut w = vec![0.0; n];
@@ -171,17 +174,7 @@ pub fn trajectory(
     let active: Vec<(usize, f64)> = (0..4.min(n))
         .map(|_| (rng.random_range(0..n), rng.random_range(0.0..std::f64::consts::TAU)))
         .collect();
-    let fw = face_width(rig);
-    let depth = camera.fx * fw / (0.35 * width);
-    let mut centre = Vector3::zeros();
-    let mut cnt = 0.0;
-    for l in 0..NUM_LANDMARKS {
-        if rig.mapped[l] {
-            centre += Vector3::new(rig.neutral[[l, 0]], rig.neutral[[l, 1]], rig.neutral[[l, 2]]);
-            cnt += 1.0;
-        }
-    }
-    centre /= cnt;
+    let (depth, centre) = framing(rig, camera, width);
     let flip = Rotation3::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
     (0..count)
         .map(|t| {
