@@ -624,15 +624,9 @@ fn write_report(
             let size = rgb.height().clamp(64, 720);
             let mut posed = Vec::new();
             setup.rig_mesh.pose_into(&f.weights, &mut posed)?;
-            // Show the head rotation as seen by the camera: camera axes are x right, y down,
-            // z forward; the renderer looks along -z with y up, so flip y and z.
+            // Show the head rotation as seen by the camera.
             let rot = match &f.pose {
-                Some(p) => {
-                    let flip = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(
-                        &nalgebra::Vector3::new(1.0, -1.0, -1.0),
-                    ));
-                    flip * p.0.rotation.to_rotation_matrix()
-                }
+                Some(p) => report::camera_view(&p.0.rotation.to_rotation_matrix()),
                 None => nalgebra::Rotation3::identity(),
             };
             let render = report::render_mesh(&posed, &setup.rig_mesh.base.triangles, &rot, size);

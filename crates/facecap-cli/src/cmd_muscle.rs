@@ -454,14 +454,11 @@ fn write_muscle_report(
     let rows = (picks.len() as u32).div_ceil(PER_ROW).max(1);
     let mut sheet = image::RgbImage::from_pixel(PER_ROW * TILE, rows * TILE, image::Rgb([255, 255, 255]));
     let mut posed = vec![nalgebra::Point3::<f64>::origin(); rig.base().len()];
-    let flip = nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(
-        1.0, -1.0, -1.0,
-    )));
     let mut captions = Vec::new();
     for (i, (label, f)) in picks.iter().enumerate() {
         rig.pose_into(&f.contractions, f.jaw, &mut posed)?;
         let pts: Vec<nalgebra::Point3<f32>> = face_vertices.iter().map(|&v| posed[v].cast()).collect();
-        let tile = report::render_mesh(&pts, &face_triangles, &(flip * f.rotation), TILE);
+        let tile = report::render_mesh(&pts, &face_triangles, &report::camera_view(&f.rotation), TILE);
         let (x, y) = ((i as u32 % PER_ROW) * TILE, (i as u32 / PER_ROW) * TILE);
         image::imageops::overlay(&mut sheet, &tile, x as i64, y as i64);
         captions.push(format!(

@@ -120,6 +120,15 @@ pub fn png_bytes_fast(img: &RgbImage) -> std::io::Result<Vec<u8>> {
     Ok(buf)
 }
 
+/// The [`render_mesh`] rotation that shows a model posed by the model-to-camera rotation
+/// `r` as the camera sees it: camera axes are x right, y down, z forward; the renderer looks
+/// along -z with y up, so y and z are flipped after `r`.
+pub fn camera_view(r: &nalgebra::Rotation3<f64>) -> nalgebra::Rotation3<f64> {
+    let flip =
+        nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0)));
+    flip * r
+}
+
 /// Places `a` and `b` side by side (heights matched by padding).
 pub fn side_by_side(a: &RgbImage, b: &RgbImage) -> RgbImage {
     let h = a.height().max(b.height());
