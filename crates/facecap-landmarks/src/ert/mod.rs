@@ -37,7 +37,8 @@
 //!   the same f32 / f64 values except in the last bit, which can move a rounded
 //!   pixel only when a coordinate lies within ~1e-13 px of a half-integer.
 //! * Leaf indices for all trees of a cascade are found first, then the leaf
-//!   vectors are added in tree order: the same f32 sums as dlib's interleaved loop.
+//!   vectors are added in tree order, four rows per pass over the coordinates:
+//!   per coordinate the same f32 additions in the same order as dlib's loop.
 //!
 //! # Layout
 //! Trees are stored as flat arrays per cascade (structure of arrays): split feature
@@ -454,14 +455,7 @@ impl ShapePredictor {
             let n_trees = c.split_start.len() - 1;
             let leaf = &mut leaf[..n_trees];
             find_leaves(c, feats, leaf);
-            for &li in leaf.iter() {
-                let start = li as usize * dim;
-                if let Some(values) = c.leaves.get(start..start + dim) {
-                    for (s, v) in shape.iter_mut().zip(values) {
-                        *s += *v;
-                    }
-                }
-            }
+            add_leaves(shape, &c.leaves, leaf, dim);
         }
         let round = self.params.output == OutputPrecision::DlibIntegerPixels;
         for (o, s) in out.iter_mut().zip(shape.chunks_exact(2)) {
@@ -472,6 +466,40 @@ impl ShapePredictor {
             } else {
                 Point2::new(x, y)
             };
+        }
+    }
+}
+
+/// `shape += leaves[l]` for every reached leaf `l`, in tree order.
+///
+/// Four leaves are added per pass over the coordinates (`x = s; x += a; x += b;
+/// x += c; x += d; s = x`): per coordinate the f32 additions are the same, in the
+/// same order, as adding one leaf vector after the other (dlib's loop), so the
+/// sums are bit-identical, but the four rows are requested from memory together
+/// and the shape stays in registers between them.
+fn add_leaves(shape: &mut [f32], leaves: &[f32], leaf: &[u32], dim: usize) {
+    let row = |li: u32| {
+        let start = li as usize * dim;
+        leaves.get(start..start + dim)
+    };
+    let mut groups = leaf.chunks_exact(4);
+    for g in &mut groups {
+        if let (Some(a), Some(b), Some(c), Some(d)) = (row(g[0]), row(g[1]), row(g[2]), row(g[3])) {
+            for ((((s, a), b), c), d) in shape.iter_mut().zip(a).zip(b).zip(c).zip(d) {
+                let mut x = *s;
+                x += *a;
+                x += *b;
+                x += *c;
+                x += *d;
+                *s = x;
+            }
+        }
+    }
+    for &li in groups.remainder() {
+        if let Some(a) = row(li) {
+            for (s, a) in shape.iter_mut().zip(a) {
+                *s += *a;
+            }
         }
     }
 }
