@@ -304,6 +304,124 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     })
 }
 
+/// One tracked frame, passed from the tracking to the solving stage.
+struct Tracked {
+    index: u64,
+    timestamp: f64,
+    /// The landmarks when tracking succeeded.
+    landmarks: Option<Landmarks68>,
+    confidence: f64,
+    /// The grey frame, for the frames shown on the report's contact sheet.
+    gray: Option<GrayImage>,
+}
+
+/// The solving stage of [`capture_one`]: per tracked frame, solve for pose and
+/// weights, write the CSV rows (landmarks, pose, weights, muscles, tensor) and keep
+/// what the animation and report need.
+struct SolveStage<'a> {
+    video: &'a Path,
+    progress: &'a crate::progress::Progress,
+    solver: &'a AnySolver,
+    lm_csv: &'a mut FrameCsvWriter,
+    pose_csv: &'a mut FrameCsvWriter,
+    w_csv: &'a mut FrameCsvWriter,
+    muscle_run: Option<&'a mut crate::capture_extras::MuscleRun>,
+    tensor_run: Option<&'a mut crate::capture_extras::TensorRun>,
+    bar: crate::progress::Bar,
+    sheet: Vec<(u64, GrayImage, FrameOut)>,
+    frames: Vec<FrameOut>,
+    faces_found: u64,
+    timings: Timings,
+}
+
+impl SolveStage<'_> {
+    fn run(&mut self, queue: std::sync::mpsc::Receiver<Tracked>) -> anyhow::Result<()> {
+        let solver = self.solver;
+        let n = solver.num_shapes();
+        let mut solver_ws = solver.workspace();
+        let mut solve_state = SolveState::new(n);
+        let mut solution = Solution::new(n);
+        let mut lm_values = [0.0; 2 * NUM_LANDMARKS];
+        let mut prev_weights = vec![0.0; n];
+        let nan_weights = vec![f64::NAN; n];
+        for msg in queue {
+            let lms = msg.landmarks;
+            landmark_values(lms.as_ref(), &mut lm_values);
+            self.lm_csv.write_row(&FrameRow {
+                frame: msg.index,
+                timestamp: msg.timestamp,
+                success: lms.is_some(),
+                confidence: msg.confidence,
+                values: &lm_values,
+            })?;
+            let t = Instant::now();
+            let mut out = FrameOut {
+                timestamp: msg.timestamp,
+                success: false,
+                confidence: msg.confidence,
+                landmarks: lms.clone(),
+                weights: prev_weights.clone(),
+                pose: None,
+                reprojection_px: f64::NAN,
+            };
+            if let Some(l) = &lms {
+                self.faces_found += 1;
+                match solver.solve_into(l, &mut solver_ws, &mut solve_state, &mut solution) {
+                    Ok(_) => {
+                        out.success = true;
+                        out.weights.copy_from_slice(&solution.weights);
+                        out.pose = solution.pose;
+                        out.reprojection_px = solution.reprojection_error(l);
+                        prev_weights.copy_from_slice(&solution.weights);
+                    }
+                    Err(e) => {
+                        self.progress.line(&format!(
+                            "{}: frame {}: solver failed: {e}",
+                            self.video.display(),
+                            msg.index
+                        ));
+                        solve_state.reset();
+                    }
+                }
+            } else {
+                solve_state.reset();
+            }
+            self.timings.solve += t.elapsed().as_secs_f64();
+            let pose_values = pose_row(out.pose.as_ref());
+            self.pose_csv.write_row(&FrameRow {
+                frame: msg.index,
+                timestamp: msg.timestamp,
+                success: out.success && out.pose.is_some(),
+                confidence: msg.confidence,
+                values: &pose_values,
+            })?;
+            self.w_csv.write_row(&FrameRow {
+                frame: msg.index,
+                timestamp: msg.timestamp,
+                success: out.success,
+                confidence: msg.confidence,
+                values: if out.success { &out.weights } else { &nan_weights },
+            })?;
+            if let Some(m) = self.muscle_run.as_deref_mut() {
+                let t = Instant::now();
+                m.frame(msg.index, msg.timestamp, lms.as_ref(), msg.confidence)?;
+                self.timings.muscles += t.elapsed().as_secs_f64();
+            }
+            if let Some(tr) = self.tensor_run.as_deref_mut() {
+                let t = Instant::now();
+                tr.frame(msg.index, msg.timestamp, lms.as_ref(), msg.confidence)?;
+                self.timings.tensor += t.elapsed().as_secs_f64();
+            }
+            if let Some(gray) = msg.gray {
+                self.sheet.push((msg.index, gray, out.clone()));
+            }
+            self.frames.push(out);
+            self.bar.inc();
+        }
+        Ok(())
+    }
+}
+
 fn video_stem(p: &Path) -> String {
     p.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -341,9 +459,6 @@ fn capture_one(
         None => Intrinsics::default_for_frame(info.width, info.height)?,
     };
     let solver = AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?;
-    let mut solver_ws = solver.workspace();
-    let mut solve_state = SolveState::new(solver.num_shapes());
-    let mut solution = Solution::new(solver.num_shapes());
     let tracker = &setup.tracker;
     let mut tracker_ws = tracker.new_workspace();
     let mut tracker_state = TrackerState::new();
@@ -356,109 +471,109 @@ fn capture_one(
     let mut muscle_run = setup.muscles.as_ref().map(|m| m.start(out_dir, camera)).transpose()?;
     let mut tensor_run = setup.tensor.as_ref().map(|t| t.start(out_dir, camera)).transpose()?;
 
-    let mut bar = progress.bar(video, info.frame_count);
     let sheet_every = info
         .frame_count
         .map(|n| (n as usize / args.sheet_frames.max(1)).max(1))
         .unwrap_or(30);
-    let mut sheet: Vec<(u64, GrayImage, FrameOut)> = Vec::new();
-    let mut frames: Vec<FrameOut> = Vec::new();
-    let mut frame = Frame::default();
-    let mut lm_values = [0.0; 2 * NUM_LANDMARKS];
-    let mut prev_weights = vec![0.0; names.len()];
-    let mut faces_found = 0u64;
-    let nan_weights = vec![f64::NAN; names.len()];
-    loop {
-        if interrupted.load(Ordering::SeqCst) {
-            anyhow::bail!("interrupted at frame {}", frames.len());
-        }
-        let t = Instant::now();
-        if !source.read_into(&mut frame)? {
-            break;
-        }
-        timings.decode += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        tracker.track_into(
-            &frame.gray,
-            frame.timestamp_s,
-            &mut tracker_ws,
-            &mut tracker_state,
-            &mut tracked,
-        )?;
-        timings.track += t.elapsed().as_secs_f64();
-        let lms = tracked.success.then(|| tracked.landmarks.clone());
-        landmark_values(lms.as_ref(), &mut lm_values);
-        lm_csv.write_row(&FrameRow {
-            frame: frame.index,
-            timestamp: frame.timestamp_s,
-            success: tracked.success,
-            confidence: tracked.confidence,
-            values: &lm_values,
-        })?;
-        let t = Instant::now();
-        let mut out = FrameOut {
-            timestamp: frame.timestamp_s,
-            success: false,
-            confidence: tracked.confidence,
-            landmarks: lms.clone(),
-            weights: prev_weights.clone(),
-            pose: None,
-            reprojection_px: f64::NAN,
-        };
-        if let Some(l) = &lms {
-            faces_found += 1;
-            match solver.solve_into(l, &mut solver_ws, &mut solve_state, &mut solution) {
-                Ok(_) => {
-                    out.success = true;
-                    out.weights.copy_from_slice(&solution.weights);
-                    out.pose = solution.pose;
-                    out.reprojection_px = solution.reprojection_error(l);
-                    prev_weights.copy_from_slice(&solution.weights);
+    let sheet_max = args.sheet_frames.max(1);
+    // Three stages on their own threads, connected by short bounded queues:
+    // decoding (reads the ffmpeg pipe into reused frames), tracking (this thread),
+    // and solving + writing the per-frame outputs. Each stage's busy time is
+    // reported; frames stay in order because every queue is FIFO.
+    let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(4);
+    let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
+    let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(16);
+    let mut stage = SolveStage {
+        video,
+        progress,
+        solver: &solver,
+        lm_csv: &mut lm_csv,
+        pose_csv: &mut pose_csv,
+        w_csv: &mut w_csv,
+        muscle_run: muscle_run.as_mut(),
+        tensor_run: tensor_run.as_mut(),
+        bar: progress.bar(video, info.frame_count),
+        sheet: Vec::new(),
+        frames: Vec::new(),
+        faces_found: 0,
+        timings: Timings::default(),
+    };
+    let (decode_result, track_result, stage_result) = std::thread::scope(|scope| {
+        let decoder = scope.spawn(move || -> anyhow::Result<f64> {
+            let mut busy = 0.0;
+            loop {
+                let mut frame = recycle_rx.try_recv().unwrap_or_default();
+                let t = Instant::now();
+                if !source.read_into(&mut frame)? {
+                    return Ok(busy);
                 }
-                Err(e) => {
-                    progress.line(&format!(
-                        "{}: frame {}: solver failed: {e}",
-                        video.display(),
-                        frame.index
-                    ));
-                    solve_state.reset();
+                busy += t.elapsed().as_secs_f64();
+                if frame_tx.send(frame).is_err() {
+                    // the tracking stage stopped (error or interrupt)
+                    return Ok(busy);
                 }
             }
-        } else {
-            solve_state.reset();
-        }
-        timings.solve += t.elapsed().as_secs_f64();
-        let pose_values = pose_row(out.pose.as_ref());
-        pose_csv.write_row(&FrameRow {
-            frame: frame.index,
-            timestamp: frame.timestamp_s,
-            success: out.success && out.pose.is_some(),
-            confidence: tracked.confidence,
-            values: &pose_values,
-        })?;
-        w_csv.write_row(&FrameRow {
-            frame: frame.index,
-            timestamp: frame.timestamp_s,
-            success: out.success,
-            confidence: tracked.confidence,
-            values: if out.success { &out.weights } else { &nan_weights },
-        })?;
-        if let Some(m) = muscle_run.as_mut() {
-            let t = Instant::now();
-            m.frame(frame.index, frame.timestamp_s, lms.as_ref(), tracked.confidence)?;
-            timings.muscles += t.elapsed().as_secs_f64();
-        }
-        if let Some(tr) = tensor_run.as_mut() {
-            let t = Instant::now();
-            tr.frame(frame.index, frame.timestamp_s, lms.as_ref(), tracked.confidence)?;
-            timings.tensor += t.elapsed().as_secs_f64();
-        }
-        if frame.index as usize % sheet_every == 0 && sheet.len() < args.sheet_frames.max(1) {
-            sheet.push((frame.index, frame.gray.clone(), out.clone()));
-        }
-        frames.push(out);
-        bar.inc();
-    }
+        });
+        let stage_ref = &mut stage;
+        let worker = scope.spawn(move || stage_ref.run(track_rx));
+        let track_result = (|| -> anyhow::Result<f64> {
+            let mut busy = 0.0;
+            let mut sent_sheet = 0usize;
+            for frame in frame_rx {
+                if interrupted.load(Ordering::SeqCst) {
+                    anyhow::bail!("interrupted at frame {}", frame.index);
+                }
+                let t = Instant::now();
+                tracker.track_into(
+                    &frame.gray,
+                    frame.timestamp_s,
+                    &mut tracker_ws,
+                    &mut tracker_state,
+                    &mut tracked,
+                )?;
+                busy += t.elapsed().as_secs_f64();
+                let keep = frame.index as usize % sheet_every == 0 && sent_sheet < sheet_max;
+                sent_sheet += usize::from(keep);
+                let msg = Tracked {
+                    index: frame.index,
+                    timestamp: frame.timestamp_s,
+                    landmarks: tracked.success.then(|| tracked.landmarks.clone()),
+                    confidence: tracked.confidence,
+                    gray: keep.then(|| frame.gray.clone()),
+                };
+                if track_tx.send(msg).is_err() {
+                    // the solving stage stopped: its error is reported below
+                    break;
+                }
+                let _ = recycle_tx.send(frame);
+            }
+            Ok(busy)
+        })();
+        // closing the queue ends the solving stage
+        drop(track_tx);
+        let stage_result = worker
+            .join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the solving stage panicked")));
+        let decode_result = decoder
+            .join()
+            .unwrap_or_else(|_| Err(anyhow::anyhow!("the decoding stage panicked")));
+        (decode_result, track_result, stage_result)
+    });
+    // the tracking error (e.g. an interrupt) first, then the others
+    timings.track = track_result?;
+    stage_result?;
+    timings.decode = decode_result?;
+    let SolveStage {
+        bar,
+        sheet,
+        frames,
+        faces_found,
+        timings: stage_timings,
+        ..
+    } = stage;
+    timings.solve = stage_timings.solve;
+    timings.muscles = stage_timings.muscles;
+    timings.tensor = stage_timings.tensor;
     bar.finish();
     if frames.is_empty() {
         anyhow::bail!("{}: no frames decoded", video.display());

@@ -151,6 +151,9 @@ impl<'a> Reader<'a> {
     /// A `float` (dlib `float_details`), converted exactly as dlib does
     /// (`ldexp((float)mantissa, exponent)`).
     pub fn float(&mut self, what: &str) -> Result<f32, DecodeError> {
+        if let Some(v) = self.fast_float() {
+            return Ok(v);
+        }
         let start = self.pos;
         match self.data.get(self.pos) {
             None => return self.err(start, format!("unexpected end of file reading {what}")),
@@ -167,6 +170,40 @@ impl<'a> Reader<'a> {
             e if e >= FD_NAN => f32::NAN,
             e => ldexp_f32(mantissa as f32, e),
         })
+    }
+
+    /// The common case of [`Reader::float`] in one pass over the bytes: a
+    /// well-formed finite value. Anything else (end of data, bad control bytes, the
+    /// old format, infinities, NaN) returns `None` without moving, and the checked
+    /// path then decodes it or reports the error. Same value as the checked path.
+    #[inline]
+    fn fast_float(&mut self) -> Option<f32> {
+        // the longest float is 12 bytes; the last few floats of a file take the
+        // checked path
+        let d = self.data.get(self.pos..self.pos.checked_add(12)?)?;
+        let c1 = *d.first()?;
+        let n1 = u32::from(c1 & 0x0F);
+        if c1 & OLD_FLOAT_FORMAT_BITS != 0 || n1 == 0 || n1 > 8 {
+            return None;
+        }
+        let raw = u64::from_le_bytes(d.get(1..9)?.try_into().ok()?);
+        let m = if n1 == 8 { raw } else { raw & ((1u64 << (8 * n1)) - 1) };
+        let at = 1 + n1 as usize;
+        let c2 = *d.get(at)?;
+        let n2 = u32::from(c2 & 0x0F);
+        if n2 == 0 || n2 > 2 {
+            return None;
+        }
+        let raw = u16::from_le_bytes(d.get(at + 1..at + 3)?.try_into().ok()?);
+        let e = i64::from(if n2 == 2 { raw } else { raw & 0xFF });
+        let m = i64::try_from(m).ok()?;
+        let mantissa = if c1 & 0x80 != 0 { -m } else { m };
+        let exponent = if c2 & 0x80 != 0 { -e } else { e };
+        if exponent >= FD_INF {
+            return None;
+        }
+        self.pos += at + 1 + n2 as usize;
+        Some(ldexp_f32(mantissa as f32, exponent))
     }
 
     /// A column vector `matrix<float,0,1>`.
@@ -188,7 +225,11 @@ impl<'a> Reader<'a> {
         out.clear();
         out.reserve(n as usize);
         for _ in 0..n {
-            out.push(self.float(what)?);
+            let v = match self.fast_float() {
+                Some(v) => v,
+                None => self.float(what)?,
+            };
+            out.push(v);
         }
         Ok(())
     }
@@ -201,8 +242,10 @@ fn ldexp_f32(x: f32, e: i64) -> f32 {
     }
     // |x| is in [2^-149, 2^128); clamping e keeps x * 2^e exact in f64 and the
     // clamped results still over/underflow f32 exactly as the unclamped ones.
-    let e = e.clamp(-400, 400) as i32;
-    let y = f64::from(x) * 2f64.powi(e);
+    let e = e.clamp(-400, 400);
+    // 2^e built from its bits (exact, as `powi` but without the loop)
+    let scale = f64::from_bits(((e + 1023) as u64) << 52);
+    let y = f64::from(x) * scale;
     y as f32
 }
 
@@ -341,5 +384,75 @@ mod tests {
         assert!(Reader::new(&[0x03, 1, 2]).signed(2, "v").is_err());
         assert!(Reader::new(&[0x30]).float("v").is_err());
         assert!(Reader::new(&[]).float("v").is_err());
+    }
+
+    #[test]
+    fn ldexp_matches_powi_over_the_whole_range() {
+        for &x in &[
+            1.0f32,
+            -1.0,
+            0.75,
+            8_388_607.0,
+            -12_345_678.0,
+            f32::MIN_POSITIVE,
+            3.0e38,
+            1.0e-45,
+        ] {
+            for e in -500i64..=500 {
+                let want = (f64::from(x) * 2f64.powi(e.clamp(-400, 400) as i32)) as f32;
+                let got = ldexp_f32(x, e);
+                assert!(
+                    got.to_bits() == want.to_bits(),
+                    "ldexp({x}, {e}) = {got}, powi gives {want}"
+                );
+            }
+        }
+        assert_eq!(ldexp_f32(0.0, 7), 0.0);
+        assert!(ldexp_f32(f32::NAN, 1).is_nan());
+    }
+
+    #[test]
+    fn fast_float_equals_the_checked_decoding() {
+        let mut w = Writer::default();
+        let mut values = vec![
+            0.0f32,
+            -0.0,
+            1.0,
+            -2.5,
+            1e-40,
+            -3.0e38,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ];
+        let mut x = 0x1234_5678u32;
+        for _ in 0..2000 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            values.push(f32::from_bits(x));
+        }
+        for &v in &values {
+            w.float(v);
+        }
+        let mut fast = Reader::new(&w.bytes);
+        let mut slow = Reader::new(&w.bytes);
+        for &v in &values {
+            let got = fast.float("v").unwrap();
+            let m = slow.signed(8, "m").unwrap();
+            let e = slow.signed(2, "e").unwrap();
+            let want = match e {
+                FD_INF => f32::INFINITY,
+                FD_NINF => f32::NEG_INFINITY,
+                e if e >= FD_NAN => f32::NAN,
+                e => ldexp_f32(m as f32, e),
+            };
+            assert!(
+                got.to_bits() == want.to_bits() || got.is_nan() && want.is_nan(),
+                "{v}: {got} vs {want}"
+            );
+            assert!(got == v || v.is_nan() && got.is_nan(), "{v} read back as {got}");
+        }
+        assert_eq!(fast.remaining(), 0);
     }
 }
