@@ -162,8 +162,9 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         )
     })?;
     // Sub-pixel output: dlib rounds to whole pixels, which adds jitter to tracking.
-    let ert =
-        facecap_landmarks::ert::ShapePredictor::from_file(&ert_path)?.with_params(facecap_landmarks::ert::ErtParams {
+    let ert = facecap_landmarks::ert::ShapePredictor::from_file_cached(&ert_path)?
+        .0
+        .with_params(facecap_landmarks::ert::ErtParams {
             output: facecap_landmarks::ert::OutputPrecision::SubPixel,
         });
     let mut tracker_params = TrackerParams::default();

@@ -126,7 +126,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         bail!("{}: a video must be the only input (video mode)", v.display());
     }
     let model_path = resolve_model(args.model.as_deref())?;
-    let sp = ShapePredictor::from_file(&model_path)
+    let sp = ShapePredictor::from_file_cached(&model_path)
+        .map(|(sp, _)| sp)
         .with_context(|| format!("loading shape predictor {}", model_path.display()))?;
     let detector = match args.face_box {
         Some(_) => None,

@@ -32,7 +32,8 @@ use crate::cmd_landmarks::{resolve_model, VideoJob};
 /// Runs the video mode.
 pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
     let model_path = resolve_model(job.model.as_deref())?;
-    let sp = ShapePredictor::from_file(&model_path)
+    let sp = ShapePredictor::from_file_cached(&model_path)
+        .map(|(sp, _)| sp)
         .with_context(|| format!("loading {}", model_path.display()))?
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,

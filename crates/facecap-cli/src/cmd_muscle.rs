@@ -207,7 +207,8 @@ fn landmarks_from_video(a: &TrackArgs) -> anyhow::Result<Landmarks> {
     use facecap_landmarks::tracker::one_euro::OneEuroParams;
     use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
     let model_path = crate::cmd_landmarks::resolve_model(a.model.as_deref())?;
-    let sp = ShapePredictor::from_file(&model_path)
+    let sp = ShapePredictor::from_file_cached(&model_path)
+        .map(|(sp, _)| sp)
         .with_context(|| format!("loading {}", model_path.display()))?
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,

@@ -77,8 +77,9 @@ pub fn detect_landmarks(gray: &GrayImage) -> anyhow::Result<Option<Landmarks68>>
             facecap_core::paths::DLIB_68_MODEL
         )
     })?;
-    let ert =
-        facecap_landmarks::ert::ShapePredictor::from_file(&model)?.with_params(facecap_landmarks::ert::ErtParams {
+    let ert = facecap_landmarks::ert::ShapePredictor::from_file_cached(&model)?
+        .0
+        .with_params(facecap_landmarks::ert::ErtParams {
             output: facecap_landmarks::ert::OutputPrecision::SubPixel,
         });
     let mut ws = ert.new_workspace();

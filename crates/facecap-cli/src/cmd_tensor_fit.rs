@@ -174,7 +174,8 @@ pub fn track_video(video: &Path, shape_model: Option<&Path>) -> anyhow::Result<V
     use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
     use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
     let model_path = crate::cmd_landmarks::resolve_model(shape_model)?;
-    let sp = ShapePredictor::from_file(&model_path)
+    let sp = ShapePredictor::from_file_cached(&model_path)
+        .map(|(sp, _)| sp)
         .with_context(|| format!("loading {}", model_path.display()))?
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,

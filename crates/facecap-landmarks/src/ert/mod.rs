@@ -63,6 +63,7 @@
 //! # Ok(()) }
 //! ```
 
+mod cache;
 pub mod dlib_format;
 mod model;
 pub mod reference;
@@ -73,6 +74,7 @@ use facecap_core::landmarks::Rect;
 use image::GrayImage;
 use nalgebra::Point2;
 
+pub use cache::CacheStatus;
 pub use model::{ErtModel, RegressionTree, SplitFeature, DLIB_SHAPE_PREDICTOR_VERSION};
 
 use crate::error::{Error, Result};
@@ -197,22 +199,7 @@ impl ShapePredictor {
     pub fn new(model: &ErtModel, params: ErtParams) -> Result<Self> {
         model.validate()?;
         let dim = model.initial_shape.len();
-        let parts = dim / 2;
-        let mut mean = [0f64; 2];
-        for p in model.initial_shape.chunks_exact(2) {
-            mean[0] += f64::from(p[0]);
-            mean[1] += f64::from(p[1]);
-        }
-        mean[0] /= parts as f64;
-        mean[1] /= parts as f64;
-        let mut initial_centred = Vec::with_capacity(dim);
-        let mut initial_norm2 = 0.0;
-        for p in model.initial_shape.chunks_exact(2) {
-            let (x, y) = (f64::from(p[0]) - mean[0], f64::from(p[1]) - mean[1]);
-            initial_centred.push(x);
-            initial_centred.push(y);
-            initial_norm2 += x * x + y * y;
-        }
+        let (initial_centred, initial_norm2) = centred_mean_shape(&model.initial_shape);
         let mut cascades = Vec::with_capacity(model.forests.len());
         let (mut max_features, mut max_trees) = (0, 0);
         for ((trees, anchors), deltas) in model.forests.iter().zip(&model.anchor_idx).zip(&model.deltas) {
@@ -273,6 +260,40 @@ impl ShapePredictor {
     /// [`Error::Model`] for unreadable, malformed, truncated or wrong-version files.
     pub fn from_file(path: &Path) -> Result<Self> {
         Self::new(&ErtModel::from_file(path)?, ErtParams::default())
+    }
+
+    /// Like [`ShapePredictor::from_file`], through a binary cache beside the model
+    /// file (`<file>.facecap-cache`): the first call parses the model and writes the
+    /// cache atomically; later calls load the flat arrays from it, several times
+    /// faster, as long as it matches the model file's size and modification time and
+    /// passes its checksum and structural checks (otherwise the model is parsed again
+    /// and the cache rewritten). The predictor is the same either way.
+    ///
+    /// # Errors
+    /// As [`ShapePredictor::from_file`]. A cache that cannot be written is not an
+    /// error: [`CacheStatus::NotWritten`] says why.
+    pub fn from_file_cached(path: &Path) -> Result<(Self, CacheStatus)> {
+        let stamp = cache::SourceStamp::of(path);
+        let cache_file = cache::cache_path(path);
+        if let Some(stamp) = stamp {
+            if let Ok(bytes) = std::fs::read(&cache_file) {
+                if let Some(sp) = cache::decode(&bytes, stamp, ErtParams::default()) {
+                    return Ok((sp, CacheStatus::Hit));
+                }
+            }
+        }
+        let sp = Self::from_file(path)?;
+        let status = match stamp {
+            None => CacheStatus::NotWritten("the model file's size and time cannot be read".into()),
+            Some(stamp) => {
+                let bytes = cache::encode(&sp, stamp);
+                match facecap_core::atomic::write_atomic(&cache_file, |w| w.write_all(&bytes)) {
+                    Ok(()) => CacheStatus::Written,
+                    Err(e) => CacheStatus::NotWritten(e.to_string()),
+                }
+            }
+        };
+        Ok((sp, status))
     }
 
     /// Parses an in-memory dlib `shape_predictor` with default parameters.
@@ -468,6 +489,27 @@ impl ShapePredictor {
             };
         }
     }
+}
+
+/// The mean shape centred on its centroid (f64) and its squared norm.
+fn centred_mean_shape(initial: &[f32]) -> (Vec<f64>, f64) {
+    let parts = (initial.len() / 2).max(1);
+    let mut mean = [0f64; 2];
+    for p in initial.chunks_exact(2) {
+        mean[0] += f64::from(p[0]);
+        mean[1] += f64::from(p[1]);
+    }
+    mean[0] /= parts as f64;
+    mean[1] /= parts as f64;
+    let mut centred = Vec::with_capacity(initial.len());
+    let mut norm2 = 0.0;
+    for p in initial.chunks_exact(2) {
+        let (x, y) = (f64::from(p[0]) - mean[0], f64::from(p[1]) - mean[1]);
+        centred.push(x);
+        centred.push(y);
+        norm2 += x * x + y * y;
+    }
+    (centred, norm2)
 }
 
 /// `shape += leaves[l]` for every reached leaf `l`, in tree order.
