@@ -50,6 +50,7 @@ use facecap_core::camera::{Intrinsics, ModelToCamera};
 use nalgebra::{Point2, Point3};
 
 use crate::error::{Error, Result};
+use crate::kernels;
 use crate::model::TensorModel;
 use crate::nnls;
 use crate::pose;
@@ -192,16 +193,22 @@ pub struct FitWorkspace {
     beta: Vec<f64>,
     ab: Vec<f64>,
     pts: Vec<Point3<f64>>,
-    /// Design rows of the block being accumulated: `[N][2][r]` (two image rows per
-    /// weighted point, contiguous), and each point's weight `w_k / sum w`.
+    /// Design rows of the block being accumulated: `[N][2][rp]` (two image rows per
+    /// weighted point, contiguous, scaled by `sqrt(w_k / sum w)`, zero-padded to
+    /// `rp = r` rounded up to a multiple of 8).
     design: Vec<f64>,
-    design_w: Vec<f64>,
+    /// `rp x rp` scratch for the blocked `A^T W A` of [`kernels::syrk_upper`].
+    hpad: Vec<f64>,
+    /// Model points as `[N][3]` (output of [`kernels::points`]).
+    pflat: Vec<f64>,
     h: Vec<f64>,
     g: Vec<f64>,
     hdb: Vec<f64>,
     fdb: Vec<f64>,
     tmp: Vec<f64>,
     grad: Vec<f64>,
+    /// Scratch of the NNLS support polish ([`nnls::solve_polished_into`]).
+    nnls_scratch: Vec<f64>,
     sol: Vec<f64>,
     depth_backup: Vec<f64>,
     /// Per point, the core contracted with the identity modes: `[N][3][r_exp]`.
@@ -220,8 +227,10 @@ pub struct FitWorkspace {
 pub struct Fitter {
     params: FitParams,
     vertices: Vec<u32>,
-    /// `[N][3][r_exp][r_id]` (per point and coordinate, the core slice transposed).
-    core: Vec<f64>,
+    /// `[N][3][r_exp][r_id]` (per point and coordinate, the core slice transposed),
+    /// stored in `f32` to halve the memory traffic of the contractions (all arithmetic
+    /// is in `f64`; see "Precision" in the module docs).
+    core: Vec<f32>,
     /// `[N][3]`
     mean: Vec<f64>,
     /// `(I, r_id)` row-major.
@@ -307,7 +316,9 @@ impl Fitter {
                 let p = 3 * v as usize + c;
                 // Stored transposed, [r_exp][r_id]: both contractions then run over
                 // contiguous length-r_id rows (axpy for `C beta`, dot for `alpha^T C`).
-                core.extend(model.core.slice(ndarray::s![p, .., ..]).t().iter());
+                // f32 storage (deliberate rounding, see the module docs).
+                #[allow(clippy::cast_possible_truncation)]
+                core.extend(model.core.slice(ndarray::s![p, .., ..]).t().iter().map(|&v| v as f32));
                 mean.push(model.mean[p]);
             }
         }
@@ -359,20 +370,23 @@ impl Fitter {
     pub fn workspace(&self) -> FitWorkspace {
         let n = self.vertices.len();
         let r = self.r_id.max(self.r_exp);
+        let rp = pad8(r);
         let d = self.ni.max(self.ne);
         FitWorkspace {
             alpha: vec![0.0; self.r_id],
             beta: vec![0.0; self.r_exp],
             ab: vec![0.0; self.r_id * self.r_exp],
             pts: vec![Point3::origin(); n],
-            design: vec![0.0; 2 * n * r],
-            design_w: vec![0.0; n],
+            design: vec![0.0; 2 * n * rp],
+            hpad: vec![0.0; rp * rp],
+            pflat: vec![0.0; 3 * n],
             h: vec![0.0; r * r],
             g: vec![0.0; r],
             hdb: vec![0.0; d * d],
             fdb: vec![0.0; d],
             tmp: vec![0.0; d * r],
             grad: vec![0.0; d],
+            nnls_scratch: vec![0.0; nnls::polish_scratch_len(d)],
             sol: vec![0.0; d.max(r)],
             depth_backup: vec![0.0; n],
             texp: vec![0.0; n * 3 * self.r_exp],
@@ -431,12 +445,9 @@ impl Fitter {
                 *o = a * b;
             }
         }
-        let blk = self.r_id * self.r_exp;
-        for (k, p) in ws.pts.iter_mut().enumerate() {
-            for c in 0..3 {
-                let row = &self.core[(3 * k + c) * blk..(3 * k + c + 1) * blk];
-                p[c] = self.mean[3 * k + c] + dot(row, &ws.ab);
-            }
+        kernels::points(&self.core, &self.mean, &ws.ab, &mut ws.pflat);
+        for (p, q) in ws.pts.iter_mut().zip(ws.pflat.chunks_exact(3)) {
+            *p = Point3::new(q[0], q[1], q[2]);
         }
         self.record_points(state, ws);
     }
@@ -458,67 +469,39 @@ impl Fitter {
     /// `texp[k][c] = alpha^T C_kc` (the core of point `k`, coordinate `c`, contracted
     /// with the identity modes) for every point; `ws.alpha` must be current.
     fn contract_exp(&self, ws: &mut FitWorkspace) {
-        let (ri, re, blk) = (self.r_id, self.r_exp, self.r_id * self.r_exp);
-        for (core, out) in self.core.chunks_exact(blk).zip(ws.texp.chunks_exact_mut(re)) {
-            for (o, row) in out.iter_mut().zip(core.chunks_exact(ri)) {
-                *o = dot(row, &ws.alpha);
-            }
-        }
+        kernels::contract_exp(&self.core, &ws.alpha, self.r_exp, &mut ws.texp);
     }
 
     /// `tid[k][c] = C_kc beta` for every point; `ws.beta` must be current.
     fn contract_id(&self, ws: &mut FitWorkspace) {
-        let (ri, blk) = (self.r_id, self.r_id * self.r_exp);
-        for (core, out) in self.core.chunks_exact(blk).zip(ws.tid.chunks_exact_mut(ri)) {
-            // Four expression modes per pass over `out` (one load/store per four rows).
-            let rows4 = core.chunks_exact(4 * ri);
-            let rest = rows4.remainder();
-            let b4 = ws.beta.chunks_exact(4);
-            let brest = b4.remainder();
-            out.iter_mut().for_each(|o| *o = 0.0);
-            let n = out.len();
-            for (rows, b) in rows4.zip(b4) {
-                let (c0, c1, c2, c3) = (
-                    &rows[..n],
-                    &rows[ri..ri + n],
-                    &rows[2 * ri..2 * ri + n],
-                    &rows[3 * ri..3 * ri + n],
-                );
-                for j in 0..n {
-                    out[j] += (b[0] * c0[j] + b[1] * c1[j]) + (b[2] * c2[j] + b[3] * c3[j]);
-                }
-            }
-            for (b, row) in brest.iter().zip(rest.chunks_exact(ri)) {
-                for (o, cv) in out.iter_mut().zip(row) {
-                    *o += b * cv;
-                }
-            }
-        }
+        kernels::contract_id(&self.core, &ws.beta, self.r_id, &mut ws.tid);
     }
 
     /// `ws.pts` from a contraction (`texp` with `beta`, or `tid` with `alpha`): the
     /// same points as [`Self::update_points`] at a fraction of the cost.
     fn points_from(&self, block: Block, ws: &mut FitWorkspace) {
-        let (t, w, r) = match block {
-            Block::Exp => (&ws.texp, &ws.beta, self.r_exp),
-            Block::Id => (&ws.tid, &ws.alpha, self.r_id),
+        let (t, w) = match block {
+            Block::Exp => (&ws.texp, &ws.beta),
+            Block::Id => (&ws.tid, &ws.alpha),
         };
-        for (k, p) in ws.pts.iter_mut().enumerate() {
-            for c in 0..3 {
-                let row = &t[(3 * k + c) * r..(3 * k + c + 1) * r];
-                p[c] = self.mean[3 * k + c] + dot(row, w);
-            }
-        }
+        pulp::Arch::new().dispatch(PointsFrom {
+            t,
+            w,
+            mean: &self.mean,
+            pts: &mut ws.pts,
+        });
     }
 
     /// Data term for the points in `ws.pts`.
     fn data_cost(&self, input: &FitInput, pose: &ModelToCamera, depth: &[f64], pts: &[Point3<f64>]) -> f64 {
         let k = &input.intrinsics;
         let sw: f64 = input.weights.iter().sum();
+        let rm = *pose.0.rotation.to_rotation_matrix().matrix();
+        let t = pose.0.translation.vector;
         let mut e = 0.0;
         for (((p, x), &w), &z) in pts.iter().zip(input.image).zip(input.weights).zip(depth) {
             if w > 0.0 {
-                let xc = pose.transform(p);
+                let xc = rm * p.coords + t;
                 let qx = (x.x - k.cx) * z / k.fx;
                 let qy = (x.y - k.cy) * z / k.fy;
                 e += w * ((qx - xc.x).powi(2) + (qy - xc.y).powi(2));
@@ -615,63 +598,46 @@ impl Fitter {
     /// Adds `scale * (A^T A, A^T y)` of one frame for `block` into `ws.h`, `ws.g`
     /// (upper triangle of `h` only). The other block's modes must be in `ws.alpha`/`ws.beta`.
     ///
-    /// The design rows of all weighted points are first written contiguously into
-    /// `ws.design` (`A^T y` is summed on the way), then `A^T W A` is formed by
-    /// [`syrk_upper`], a blocked rank-8 update over those rows.
+    /// The design rows of all weighted points, scaled by `sqrt(w_k)`, are first written
+    /// contiguously into `ws.design` (`A^T y` is summed on the way), then `A^T W A` is
+    /// formed by [`kernels::syrk_upper`], a register-tiled rank-`2N` update.
     fn accumulate(&self, block: Block, input: &FitInput, state: &FitState, ws: &mut FitWorkspace, scale: f64) {
         let Some(pose) = state.pose else { return };
         let r = match block {
             Block::Id => self.r_id,
             Block::Exp => self.r_exp,
         };
+        let rp = pad8(r);
         let rot = pose.0.rotation.to_rotation_matrix();
         let rm = rot.matrix();
         let t = pose.0.translation.vector;
-        let k = &input.intrinsics;
         let sw: f64 = input.weights.iter().sum();
         let tall = match block {
             Block::Exp => &ws.texp,
             Block::Id => &ws.tid,
         };
-        let g = &mut ws.g[..r];
-        let mut m = 0;
-        for (idx, ((x, &w), &z)) in input.image.iter().zip(input.weights).zip(&state.depth).enumerate() {
-            if w <= 0.0 {
-                continue;
+        let m = pulp::Arch::new().dispatch(DesignRows {
+            tall,
+            mean: &self.mean,
+            input,
+            depth: &state.depth,
+            rm: *rm,
+            t,
+            scale: scale / sw,
+            r,
+            rp,
+            design: &mut ws.design,
+            g: &mut ws.g[..r],
+        });
+        let hpad = &mut ws.hpad[..rp * rp];
+        hpad.iter_mut().for_each(|v| *v = 0.0);
+        kernels::syrk_upper(&ws.design[..2 * m * rp], rp, hpad);
+        let h = &mut ws.h[..r * r];
+        for i in 0..r {
+            for (hv, pv) in h[i * r + i..(i + 1) * r].iter_mut().zip(&hpad[i * rp + i..i * rp + r]) {
+                *hv += pv;
             }
-            let wk = scale * w / sw;
-            // The core of this point contracted with the fixed block (precomputed).
-            let tcon = &tall[3 * idx * r..3 * (idx + 1) * r];
-            let (t0s, rest) = tcon.split_at(r);
-            let (t1s, t2s) = rest.split_at(r);
-            let m3 = [self.mean[3 * idx], self.mean[3 * idx + 1], self.mean[3 * idx + 2]];
-            let qx = (x.x - k.cx) * z / k.fx;
-            let qy = (x.y - k.cy) * z / k.fy;
-            let y0 = qx - (rm[(0, 0)] * m3[0] + rm[(0, 1)] * m3[1] + rm[(0, 2)] * m3[2] + t.x);
-            let y1 = qy - (rm[(1, 0)] * m3[0] + rm[(1, 1)] * m3[1] + rm[(1, 2)] * m3[2] + t.y);
-            let (r0, r1) = ws.design[2 * m * r..2 * (m + 1) * r].split_at_mut(r);
-            let (a00, a01, a02) = (rm[(0, 0)], rm[(0, 1)], rm[(0, 2)]);
-            let (a10, a11, a12) = (rm[(1, 0)], rm[(1, 1)], rm[(1, 2)]);
-            for (((((o0, o1), &t0), &t1), &t2), gv) in r0
-                .iter_mut()
-                .zip(r1.iter_mut())
-                .zip(t0s)
-                .zip(t1s)
-                .zip(t2s)
-                .zip(g.iter_mut())
-            {
-                let (v0, v1) = (a00 * t0 + a01 * t1 + a02 * t2, a10 * t0 + a11 * t1 + a12 * t2);
-                *o0 = v0;
-                *o1 = v1;
-                *gv += (wk * v0) * y0 + (wk * v1) * y1;
-            }
-            ws.design_w[m] = wk;
-            m += 1;
         }
-        let (d, dw, h) = (&ws.design[..2 * m * r], &ws.design_w[..m], &mut ws.h[..r * r]);
-        // Runtime CPU dispatch (AVX2 when available): the same additions in the same
-        // order, only wider vectors (no FMA contraction), so the result is unchanged.
-        pulp::Arch::new().dispatch(Syrk { d, w: dw, r, h });
     }
 
     /// Solves the block from `ws.h` (upper triangle of `A^T A`) and `ws.g` with prior
@@ -727,11 +693,12 @@ impl Fitter {
                 for i in 0..d {
                     fdb[i] = -(dot(&u[i * r..(i + 1) * r], &ws.g[..r]) + lambda * prior[i]);
                 }
-                nnls::solve_into(
+                nnls::solve_polished_into(
                     hdb,
                     fdb,
                     w,
                     &mut ws.grad[..d],
+                    &mut ws.nnls_scratch,
                     self.params.nnls_max_iter,
                     self.params.nnls_tol,
                 );
@@ -949,58 +916,116 @@ impl Fitter {
     }
 }
 
-/// Adds `sum_k w_k (a_k0 a_k0^T + a_k1 a_k1^T)` to the upper triangle of the row-major
-/// `r x r` matrix `h`, where `d` holds the rows `[M][2][r]` and `w` the `M` weights.
-/// Four points (eight rows) per pass over `h`, so each element of `h` is loaded and
-/// stored once per eight rows; the inner loops run over contiguous equal-length slices.
-/// [`syrk_upper`] as a [`pulp::WithSimd`] operation, compiled for the dispatched CPU level.
-struct Syrk<'a> {
-    d: &'a [f64],
-    w: &'a [f64],
+/// The design rows of one frame (see [`Fitter::accumulate`]) as a [`pulp::WithSimd`]
+/// operation, so that the loops are compiled for the dispatched CPU level.
+struct DesignRows<'a> {
+    tall: &'a [f64],
+    mean: &'a [f64],
+    input: &'a FitInput<'a>,
+    depth: &'a [f64],
+    rm: nalgebra::Matrix3<f64>,
+    t: nalgebra::Vector3<f64>,
+    /// `scale / sum w`.
+    scale: f64,
     r: usize,
-    h: &'a mut [f64],
+    rp: usize,
+    design: &'a mut [f64],
+    g: &'a mut [f64],
 }
 
-impl pulp::WithSimd for Syrk<'_> {
+impl pulp::WithSimd for DesignRows<'_> {
+    /// Number of weighted points written.
+    type Output = usize;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> usize {
+        let DesignRows {
+            tall,
+            mean,
+            input,
+            depth,
+            rm,
+            t,
+            scale,
+            r,
+            rp,
+            design,
+            g,
+        } = self;
+        let k = &input.intrinsics;
+        let (a00, a01, a02) = (rm[(0, 0)], rm[(0, 1)], rm[(0, 2)]);
+        let (a10, a11, a12) = (rm[(1, 0)], rm[(1, 1)], rm[(1, 2)]);
+        let mut m = 0;
+        for (idx, ((x, &w), &z)) in input.image.iter().zip(input.weights).zip(depth).enumerate() {
+            if w <= 0.0 {
+                continue;
+            }
+            let wk = scale * w;
+            let sk = wk.sqrt();
+            // The core of this point contracted with the fixed block (precomputed).
+            let tcon = &tall[3 * idx * r..3 * (idx + 1) * r];
+            let (t0s, rest) = tcon.split_at(r);
+            let (t1s, t2s) = rest.split_at(r);
+            let m3 = [mean[3 * idx], mean[3 * idx + 1], mean[3 * idx + 2]];
+            let qx = (x.x - k.cx) * z / k.fx;
+            let qy = (x.y - k.cy) * z / k.fy;
+            let y0 = qx - (a00 * m3[0] + a01 * m3[1] + a02 * m3[2] + t.x);
+            let y1 = qy - (a10 * m3[0] + a11 * m3[1] + a12 * m3[2] + t.y);
+            let (r0, r1) = design[2 * m * rp..2 * (m + 1) * rp].split_at_mut(rp);
+            for (((((o0, o1), &t0), &t1), &t2), gv) in r0
+                .iter_mut()
+                .zip(r1.iter_mut())
+                .zip(t0s)
+                .zip(t1s)
+                .zip(t2s)
+                .zip(g.iter_mut())
+            {
+                let (v0, v1) = (a00 * t0 + a01 * t1 + a02 * t2, a10 * t0 + a11 * t1 + a12 * t2);
+                *o0 = sk * v0;
+                *o1 = sk * v1;
+                *gv += (wk * v0) * y0 + (wk * v1) * y1;
+            }
+            r0[r..].iter_mut().for_each(|v| *v = 0.0);
+            r1[r..].iter_mut().for_each(|v| *v = 0.0);
+            m += 1;
+        }
+        m
+    }
+}
+
+/// `pts[k][c] = mean[k][c] + <t[k][c], w>` as a [`pulp::WithSimd`] operation.
+struct PointsFrom<'a> {
+    t: &'a [f64],
+    w: &'a [f64],
+    mean: &'a [f64],
+    pts: &'a mut [Point3<f64>],
+}
+
+impl pulp::WithSimd for PointsFrom<'_> {
     type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        syrk_upper(self.d, self.w, self.r, self.h);
+        let r = self.w.len();
+        for ((p, rows), m) in self
+            .pts
+            .iter_mut()
+            .zip(self.t.chunks_exact(3 * r))
+            .zip(self.mean.chunks_exact(3))
+        {
+            for c in 0..3 {
+                p[c] = m[c] + dot(&rows[c * r..(c + 1) * r], self.w);
+            }
+        }
     }
+}
+
+/// `r` rounded up to a multiple of 8 (row stride of the padded design rows).
+fn pad8(r: usize) -> usize {
+    r.div_ceil(8) * 8
 }
 
 #[inline(always)]
-fn syrk_upper(d: &[f64], w: &[f64], r: usize, h: &mut [f64]) {
-    let blocks = d.chunks_exact(8 * r);
-    let rem = blocks.remainder();
-    let wblocks = w.chunks_exact(4);
-    let wrem = wblocks.remainder();
-    for (blk, wq) in blocks.zip(wblocks) {
-        let rows: [&[f64]; 8] = std::array::from_fn(|q| &blk[q * r..(q + 1) * r]);
-        for i in 0..r {
-            let a: [f64; 8] = std::array::from_fn(|q| wq[q / 2] * rows[q][i]);
-            let hrow = &mut h[i * r + i..(i + 1) * r];
-            let n = hrow.len();
-            let s: [&[f64]; 8] = std::array::from_fn(|q| &rows[q][i..i + n]);
-            for j in 0..n {
-                hrow[j] += ((a[0] * s[0][j] + a[1] * s[1][j]) + (a[2] * s[2][j] + a[3] * s[3][j]))
-                    + ((a[4] * s[4][j] + a[5] * s[5][j]) + (a[6] * s[6][j] + a[7] * s[7][j]));
-            }
-        }
-    }
-    for (pair, &wk) in rem.chunks_exact(2 * r).zip(wrem) {
-        let (r0, r1) = pair.split_at(r);
-        for i in 0..r {
-            let (a0, a1) = (wk * r0[i], wk * r1[i]);
-            let hrow = &mut h[i * r + i..(i + 1) * r];
-            for ((hv, b0), b1) in hrow.iter_mut().zip(&r0[i..]).zip(&r1[i..]) {
-                *hv += a0 * b0 + a1 * b1;
-            }
-        }
-    }
-}
-
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     // Four independent accumulators let the compiler vectorise the reduction.
     let mut acc = [0.0f64; 4];

@@ -29,6 +29,7 @@
 pub mod error;
 pub mod features;
 pub mod fit;
+mod kernels;
 pub mod model;
 pub mod nnls;
 pub mod obj;

@@ -141,11 +141,15 @@ pub fn refine_perspective(
     max_iter: usize,
 ) -> Result<usize> {
     check(model, image, weights)?;
+    // The rotation as a matrix once per pose (9 multiplications per point instead of
+    // the quaternion's ~30).
     let cost = |pose: &ModelToCamera| {
+        let rm = *pose.0.rotation.to_rotation_matrix().matrix();
+        let t = pose.0.translation.vector;
         let mut e = 0.0;
         for ((p, x), &w) in model.iter().zip(image).zip(weights) {
             if w > 0.0 {
-                let xc = pose.transform(p);
+                let xc = rm * p.coords + t;
                 let z = xc.z.max(MIN_DEPTH);
                 let r = nalgebra::Vector2::new(k.fx * xc.x / z + k.cx - x.x, k.fy * xc.y / z + k.cy - x.y);
                 e += w * r.norm_squared();
@@ -158,35 +162,46 @@ pub fn refine_perspective(
     let mut it = 0;
     while it < max_iter {
         it += 1;
-        let mut h = Matrix6::<f64>::zeros();
-        let mut g = Vector6::<f64>::zeros();
+        // Upper triangle of J^T W J (6 x 6, 21 entries) and J^T W r, with the two
+        // Jacobian rows written out: J = [dpi * (-[R p]x) | dpi], dpi = d pixel / d X_c.
+        let rm = *pose.0.rotation.to_rotation_matrix().matrix();
+        let tv = pose.0.translation.vector;
+        let mut hu = [0.0f64; 21];
+        let mut gv = [0.0f64; 6];
         for ((p, x), &w) in model.iter().zip(image).zip(weights) {
             if w <= 0.0 {
                 continue;
             }
-            let rp = pose.0.rotation * p.coords;
-            let xc = rp + pose.0.translation.vector;
+            let rp = rm * p.coords;
+            let xc = rp + tv;
             let z = xc.z.max(MIN_DEPTH);
             let iz = 1.0 / z;
-            let r = nalgebra::Vector2::new(k.fx * xc.x * iz + k.cx - x.x, k.fy * xc.y * iz + k.cy - x.y);
-            // d pixel / d X_c
-            let dpi = Matrix2x3::new(
-                k.fx * iz,
-                0.0,
-                -k.fx * xc.x * iz * iz,
-                0.0,
-                k.fy * iz,
-                -k.fy * xc.y * iz * iz,
-            );
-            // d X_c / d omega = -[R p]x ; d X_c / d t = I
-            let skew = Matrix3::new(0.0, rp.z, -rp.y, -rp.z, 0.0, rp.x, rp.y, -rp.x, 0.0);
-            let jw = dpi * skew;
-            let mut j = nalgebra::Matrix2x6::<f64>::zeros();
-            j.fixed_view_mut::<2, 3>(0, 0).copy_from(&jw);
-            j.fixed_view_mut::<2, 3>(0, 3).copy_from(&dpi);
-            h += w * j.transpose() * j;
-            g += w * j.transpose() * r;
+            let r0 = k.fx * xc.x * iz + k.cx - x.x;
+            let r1 = k.fy * xc.y * iz + k.cy - x.y;
+            let (a, b) = (k.fx * iz, -k.fx * xc.x * iz * iz);
+            let (c, d) = (k.fy * iz, -k.fy * xc.y * iz * iz);
+            let j0 = [b * rp.y, a * rp.z - b * rp.x, -a * rp.y, a, 0.0, b];
+            let j1 = [-c * rp.z + d * rp.y, -d * rp.x, c * rp.x, 0.0, c, d];
+            let mut q = 0;
+            for pi in 0..6 {
+                let (u0, u1) = (w * j0[pi], w * j1[pi]);
+                for pj in pi..6 {
+                    hu[q] += u0 * j0[pj] + u1 * j1[pj];
+                    q += 1;
+                }
+                gv[pi] += u0 * r0 + u1 * r1;
+            }
         }
+        let mut h = Matrix6::<f64>::zeros();
+        let mut q = 0;
+        for pi in 0..6 {
+            for pj in pi..6 {
+                h[(pi, pj)] = hu[q];
+                h[(pj, pi)] = hu[q];
+                q += 1;
+            }
+        }
+        let g = Vector6::from_column_slice(&gv);
         let mut improved = false;
         for _ in 0..8 {
             let mut hd = h;
