@@ -26,8 +26,8 @@ else
   echo "demo: shared data not found ($CLIP); capturing the synthetic demo only"
 fi
 
-echo "demo: facecap capture ${VIDEOS[*]} --out $OUT/capture --solver exact3d --muscles default --force"
-"$BIN" capture "${VIDEOS[@]}" --out "$OUT/capture" --solver exact3d --muscles default --force
+echo "demo: facecap capture ${VIDEOS[*]} --out $OUT/capture --solver exact3d --neutral auto --muscles default --force"
+"$BIN" capture "${VIDEOS[@]}" --out "$OUT/capture" --solver exact3d --neutral auto --muscles default --force
 
 echo
 echo "demo outputs:"

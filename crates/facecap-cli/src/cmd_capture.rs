@@ -78,6 +78,15 @@ pub struct Args {
     /// Videos processed at once (default: number of cores).
     #[arg(long)]
     pub jobs: Option<usize>,
+    /// Per-subject neutral calibration: `none`, `auto` (the frame with the least
+    /// expression is taken as the subject's neutral) or a frame index where the
+    /// subject's face is at rest. See docs/capture.md.
+    #[arg(long, default_value = "none")]
+    pub neutral: String,
+    /// ffmpeg decoder threads per video (0 = ffmpeg's choice). One thread per video
+    /// costs the least CPU per frame; decoding runs beside tracking either way.
+    #[arg(long, default_value_t = 1)]
+    pub decode_threads: u32,
     /// Number of frames on the report's contact sheet.
     #[arg(long, default_value_t = 12)]
     pub sheet_frames: usize,
@@ -112,6 +121,7 @@ struct Setup {
     tracker: LandmarkTracker<facecap_landmarks::detect::FaceDetector, facecap_landmarks::ert::ShapePredictor>,
     muscles: Option<crate::capture_extras::MuscleSetup>,
     tensor: Option<crate::capture_extras::TensorSetup>,
+    neutral: crate::neutral::NeutralChoice,
     args_echo: serde_json::Value,
 }
 
@@ -129,6 +139,7 @@ fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
 
 fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     let method: Method = args.solver.parse()?;
+    let neutral: crate::neutral::NeutralChoice = args.neutral.parse()?;
     if !(args.temporal.is_finite() && args.temporal >= 0.0) {
         anyhow::bail!("--temporal must be finite and >= 0, got {}", args.temporal);
     }
@@ -191,6 +202,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "muscles": args.muscles,
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
         "obj": args.obj,
+        "neutral": args.neutral,
     });
     Ok(Setup {
         rig_mesh,
@@ -202,6 +214,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         tracker,
         muscles,
         tensor,
+        neutral,
         args_echo,
     })
 }
@@ -322,7 +335,6 @@ struct Tracked {
 struct SolveStage<'a> {
     video: &'a Path,
     progress: &'a crate::progress::Progress,
-    solver: &'a AnySolver,
     lm_csv: &'a mut FrameCsvWriter,
     pose_csv: &'a mut FrameCsvWriter,
     w_csv: &'a mut FrameCsvWriter,
@@ -336,8 +348,7 @@ struct SolveStage<'a> {
 }
 
 impl SolveStage<'_> {
-    fn run(&mut self, queue: std::sync::mpsc::Receiver<Tracked>) -> anyhow::Result<()> {
-        let solver = self.solver;
+    fn run(&mut self, solver: &AnySolver, queue: impl IntoIterator<Item = Tracked>) -> anyhow::Result<()> {
         let n = solver.num_shapes();
         let mut solver_ws = solver.workspace();
         let mut solve_state = SolveState::new(n);
@@ -450,7 +461,13 @@ fn capture_one(
 ) -> anyhow::Result<serde_json::Value> {
     let started = Instant::now();
     let mut timings = Timings::default();
-    let mut source = open_source(video, &SourceOptions::default())?;
+    let mut source = open_source(
+        video,
+        &SourceOptions {
+            threads: args.decode_threads,
+            ..SourceOptions::default()
+        },
+    )?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     // A previous finished capture is being redone: remove its completion marker first.
@@ -477,6 +494,7 @@ fn capture_one(
         .map(|n| (n as usize / args.sheet_frames.max(1)).max(1))
         .unwrap_or(30);
     let sheet_max = args.sheet_frames.max(1);
+    let calibrate = setup.neutral != crate::neutral::NeutralChoice::None;
     // Three stages on their own threads, connected by short bounded queues:
     // decoding (reads the ffmpeg pipe into reused frames), tracking (this thread),
     // and solving + writing the per-frame outputs. Each stage's busy time is
@@ -487,7 +505,6 @@ fn capture_one(
     let mut stage = SolveStage {
         video,
         progress,
-        solver: &solver,
         lm_csv: &mut lm_csv,
         pose_csv: &mut pose_csv,
         w_csv: &mut w_csv,
@@ -516,7 +533,15 @@ fn capture_one(
             }
         });
         let stage_ref = &mut stage;
-        let worker = scope.spawn(move || stage_ref.run(track_rx));
+        let solver_ref = &solver;
+        let worker = scope.spawn(move || -> anyhow::Result<Vec<Tracked>> {
+            if calibrate {
+                // the neutral calibration needs every frame's landmarks first
+                Ok(track_rx.into_iter().collect())
+            } else {
+                stage_ref.run(solver_ref, track_rx).map(|()| Vec::new())
+            }
+        });
         let track_result = (|| -> anyhow::Result<f64> {
             let mut busy = 0.0;
             let mut sent_sheet = 0usize;
@@ -562,7 +587,25 @@ fn capture_one(
     });
     // the tracking error (e.g. an interrupt) first, then the others
     timings.track = track_result?;
-    stage_result?;
+    let collected = stage_result?;
+    let mut neutral_report = serde_json::Value::Null;
+    if calibrate {
+        let tracked_frames: Vec<(u64, Landmarks68)> = collected
+            .iter()
+            .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
+            .collect();
+        let cal = crate::neutral::calibrate(
+            setup.neutral,
+            &setup.rig,
+            setup.method,
+            camera,
+            setup.objective,
+            &tracked_frames,
+        )?;
+        neutral_report = cal.report;
+        let calibrated = AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?;
+        stage.run(&calibrated, collected)?;
+    }
     timings.decode = decode_result?;
     let SolveStage {
         bar,
@@ -628,6 +671,7 @@ fn capture_one(
         "shapes": names,
         "livelink_csv": livelink,
         "truth": truth,
+        "neutral_calibration": neutral_report,
         "settings": setup.args_echo,
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},
     });

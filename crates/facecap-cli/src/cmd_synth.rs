@@ -89,9 +89,17 @@ pub fn detect_landmarks(gray: &GrayImage) -> anyhow::Result<Option<Landmarks68>>
     Ok(Some(Landmarks68::from_slice(&xy)?))
 }
 
-/// The known weight sequence: smooth, partly overlapping activations.
+/// Seconds of neutral face (all weights zero) at the start of the clip, as a
+/// capture session starts (what `facecap capture --neutral auto` calibrates on).
+pub const NEUTRAL_HOLD_S: f64 = 0.4;
+
+/// The known weight sequence: a neutral hold of [`NEUTRAL_HOLD_S`], then smooth,
+/// partly overlapping activations.
 pub fn truth_weights(frame: u32, fps: u32, seed: u64) -> Vec<f64> {
     let t = frame as f64 / fps as f64;
+    if t < NEUTRAL_HOLD_S {
+        return vec![0.0; DEFAULT_SHAPES.len()];
+    }
     let phase = |k: u64| ((seed.wrapping_mul(2654435761).wrapping_add(k * 40503)) % 1000) as f64 / 1000.0;
     let bump = |period: f64, k: u64, amp: f64| {
         amp * (2.0 * std::f64::consts::PI * (t / period + phase(k)))

@@ -18,6 +18,7 @@ mod cmd_tensor_fit;
 mod cmd_transfer;
 mod default_rig;
 mod livelink;
+mod neutral;
 mod progress;
 mod report;
 mod truth;

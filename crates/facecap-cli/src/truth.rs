@@ -78,7 +78,10 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
                 // Model-frame rotation relative to the first solved frame.
                 let rel_e = r_e0.inverse() * p.0.rotation.to_rotation_matrix();
                 let rel_t = r_t0.inverse() * Rotation3::from_euler_angles(x, y, z);
-                rot_errs.push((rel_e.inverse() * rel_t).angle().to_degrees());
+                // through a quaternion: `Rotation3::angle` takes acos of a trace that
+                // rounding can push past 1 (NaN for a zero error)
+                let err = nalgebra::UnitQuaternion::from_rotation_matrix(&(rel_e.inverse() * rel_t));
+                rot_errs.push(err.angle().to_degrees());
             }
         }
     }

@@ -95,6 +95,48 @@ fn synth_then_capture_with_a_bad_video() {
     assert!(out.status.success());
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["videos"][0]["status"], "skipped");
+
+    // Neutral calibration: the synthetic clip starts with a neutral hold, and auto
+    // finds a frame inside it; the weights get closer to the truth.
+    let out = facecap()
+        .args([
+            "capture",
+            "--quiet",
+            "--solver",
+            "exact3d",
+            "--neutral",
+            "auto",
+            "--out",
+        ])
+        .arg(dir.path().join("cal"))
+        .arg(synth_dir.join("synth.y4m"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let cal: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("cal").join("synth").join("summary.json")).unwrap(),
+    )
+    .unwrap();
+    let frame = cal["neutral_calibration"]["frame"].as_u64().unwrap();
+    assert!(frame < 12, "neutral frame {frame}");
+    let (before, after) = (
+        truth["weight_rmse"].as_f64().unwrap(),
+        cal["truth"]["weight_rmse"].as_f64().unwrap(),
+    );
+    assert!(
+        after < before,
+        "weight RMSE {after} with calibration vs {before} without"
+    );
+    for bad in ["sometimes", "1.5"] {
+        let out = facecap()
+            .args(["capture", "--quiet", "--neutral", bad, "--out"])
+            .arg(dir.path().join("bad"))
+            .arg(synth_dir.join("synth.y4m"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--neutral"), "{bad}");
+    }
 }
 
 fn facecap_core_cache() -> Option<std::path::PathBuf> {
