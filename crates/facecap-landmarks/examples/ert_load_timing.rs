@@ -1,5 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-//! Times the stages of loading dlib's 68-point model: file read, parse, flat layout.
+//! Times the stages of loading dlib's 68-point model: file read, parse, flat layout,
+//! and the same through the binary cache (`ShapePredictor::from_file_cached`).
+//! `cargo run --release -p facecap-landmarks --example ert_load_timing`
 use std::time::Instant;
 
 fn main() {
@@ -21,15 +23,15 @@ fn main() {
         let t = Instant::now();
         let det = facecap_landmarks::detect::FaceDetector::default_model().unwrap();
         let t_det = t.elapsed();
+        let t = Instant::now();
+        let (cached, status) = facecap_landmarks::ert::ShapePredictor::from_file_cached(&path).unwrap();
+        let t_cached = t.elapsed();
         println!(
-            "read {:?} parse {:?} flat {:?} drop {:?} detector {:?} ({} trees, {:?})",
-            t_read,
-            t_parse,
-            t_flat,
-            t_drop,
-            t_det,
-            sp.num_trees(),
-            std::mem::size_of_val(&det)
+            "parse path: read {t_read:?} + parse {t_parse:?} + flat layout {t_flat:?} + drop {t_drop:?}; \
+             from_file_cached {t_cached:?} ({status:?}, {} trees); HOG detector {t_det:?} ({} sub-detectors)",
+            cached.num_trees(),
+            det.num_sub_detectors()
         );
+        assert_eq!(cached.num_trees(), sp.num_trees());
     }
 }
