@@ -337,8 +337,8 @@ mod tests {
         image::GrayImage::from_fn(64, 48, |x, y| image::Luma([((x * 7 + y * 13) % 251) as u8]))
     }
 
-    #[test]
-    fn round_trip_predicts_the_same() {
+    /// The test model, a stamp and its cache bytes.
+    fn encoded() -> (ShapePredictor, SourceStamp, Vec<u8>) {
         let sp = ShapePredictor::new(&model(), ErtParams::default()).unwrap();
         let stamp = SourceStamp {
             len: 10,
@@ -346,6 +346,12 @@ mod tests {
             nanos: 4,
         };
         let bytes = encode(&sp, stamp);
+        (sp, stamp, bytes)
+    }
+
+    #[test]
+    fn round_trip_predicts_the_same() {
+        let (sp, stamp, bytes) = encoded();
         let back = decode(&bytes, stamp, ErtParams::default()).unwrap();
         let other = SourceStamp { nanos: 5, ..stamp };
         assert!(
@@ -371,13 +377,7 @@ mod tests {
     /// rejected or, when structurally valid, predict without panicking.
     #[test]
     fn crafted_caches_never_panic() {
-        let sp = ShapePredictor::new(&model(), ErtParams::default()).unwrap();
-        let stamp = SourceStamp {
-            len: 1,
-            secs: 2,
-            nanos: 3,
-        };
-        let bytes = encode(&sp, stamp);
+        let (_, stamp, bytes) = encoded();
         let body = bytes.len() - 8;
         let img = image();
         let rect = Rect::from_dlib(5, 4, 50, 40);
