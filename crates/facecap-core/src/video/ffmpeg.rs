@@ -116,7 +116,13 @@ pub fn locate_ffprobe(ffmpeg: &Path) -> Option<PathBuf> {
 
 /// The container's frame count of the first video stream (`nb_frames`), via ffprobe.
 pub fn probe_frame_count(ffprobe: &Path, file: &Path) -> Option<u64> {
-    let out = Command::new(ffprobe)
+    frame_count_of(spawn_frame_count_probe(ffprobe, file)?)
+}
+
+/// Starts ffprobe for [`probe_frame_count`] without waiting for it, so it can run
+/// while ffmpeg starts.
+fn spawn_frame_count_probe(ffprobe: &Path, file: &Path) -> Option<std::process::Child> {
+    Command::new(ffprobe)
         .args([
             "-v",
             "error",
@@ -128,9 +134,27 @@ pub fn probe_frame_count(ffprobe: &Path, file: &Path) -> Option<u64> {
         .args(["-of", "default=noprint_wrappers=1:nokey=1"])
         .arg(file)
         .stdin(Stdio::null())
+        .stdout(Stdio::piped())
         .stderr(Stdio::null())
-        .output()
-        .ok()?;
+        .spawn()
+        .ok()
+}
+
+/// Stops a probe that is no longer wanted (an error while opening).
+struct ProbeGuard(Option<std::process::Child>);
+
+impl Drop for ProbeGuard {
+    fn drop(&mut self) {
+        if let Some(mut p) = self.0.take() {
+            let _ = p.kill();
+            let _ = p.wait();
+        }
+    }
+}
+
+/// The frame count a probe started by [`spawn_frame_count_probe`] printed.
+fn frame_count_of(probe: std::process::Child) -> Option<u64> {
+    let out = probe.wait_with_output().ok()?;
     if !out.status.success() {
         return None;
     }
@@ -459,6 +483,8 @@ impl FfmpegSource {
             error_line: None,
             done: false,
         };
+        // The frame count comes from ffprobe, started now so it runs while ffmpeg starts.
+        let mut probe = ProbeGuard(locate_ffprobe(&ffmpeg).and_then(|p| spawn_frame_count_probe(&p, path)));
         // Header lines come before the first frame line.
         let mut header = StreamHeader::default();
         let mut rate = None;
@@ -486,6 +512,7 @@ impl FfmpegSource {
         let Some(first) = first else {
             return Err(src.open_failure());
         };
+        let frame_count = probe.0.take().and_then(frame_count_of);
         if first.width == 0 || first.height == 0 {
             return Err(src.decode_err(None, format!("ffmpeg reports a {}x{} frame", first.width, first.height)));
         }
@@ -494,7 +521,6 @@ impl FfmpegSource {
             .map(|(n, d)| n as f64 / d as f64)
             .or(header.fps)
             .unwrap_or(FALLBACK_FPS);
-        let frame_count = locate_ffprobe(&ffmpeg).and_then(|p| probe_frame_count(&p, path));
         src.info = VideoInfo {
             width: first.width,
             height: first.height,
