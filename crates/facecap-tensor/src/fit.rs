@@ -193,12 +193,14 @@ pub struct FitWorkspace {
     beta: Vec<f64>,
     ab: Vec<f64>,
     pts: Vec<Point3<f64>>,
-    /// Design rows of the block being accumulated: `[N][2][rp]` (two image rows per
-    /// weighted point, contiguous, scaled by `sqrt(w_k / sum w)`, zero-padded to
-    /// `rp = r` rounded up to a multiple of 8).
+    /// Expression design rows: `[N][2][rp]` (two image rows per weighted point,
+    /// contiguous, zero-padded to `rp = r_exp` rounded up to a multiple of 8), and each
+    /// point's weight `w_k / sum w`.
     design: Vec<f64>,
-    /// `rp x rp` scratch for the blocked `A^T W A` of [`kernels::syrk_upper`].
+    design_w: Vec<f64>,
+    /// `rp x rp` scratch for the blocked `A^T W A` of [`kernels::syrk_points`].
     hpad: Vec<f64>,
+    syrk_scratch: Vec<f64>,
     /// Model points as `[N][3]` (output of [`kernels::points`]).
     pflat: Vec<f64>,
     h: Vec<f64>,
@@ -213,8 +215,14 @@ pub struct FitWorkspace {
     depth_backup: Vec<f64>,
     /// Per point, the core contracted with the identity modes: `[N][3][r_exp]`.
     texp: Vec<f64>,
-    /// Per point, the core contracted with the expression modes: `[N][3][r_id]`.
-    tid: Vec<f64>,
+    /// Per point, the core contracted with the expression modes and rotated by the
+    /// pose rotation `R` (`ws.rtid_rot`): `[N][3][rp_id]` (rows 0 and 1 are the
+    /// identity design rows).
+    rtid: Vec<f64>,
+    rtid_rot: [f64; 9],
+    /// Per point: the weight `w_k / sum w` (0 = unused) and the two residual targets.
+    pw: Vec<f64>,
+    py: Vec<f64>,
     /// The weights `pts` were computed for (valid when `pts_valid`): a warm-started
     /// call on an unchanged state skips recomputing the points.
     pts_w_id: Vec<f64>,
@@ -377,8 +385,10 @@ impl Fitter {
             beta: vec![0.0; self.r_exp],
             ab: vec![0.0; self.r_id * self.r_exp],
             pts: vec![Point3::origin(); n],
-            design: vec![0.0; 2 * n * rp],
+            design: vec![0.0; 2 * n * pad8(self.r_exp)],
+            design_w: vec![0.0; n],
             hpad: vec![0.0; rp * rp],
+            syrk_scratch: vec![0.0; kernels::syrk_scratch_len(rp)],
             pflat: vec![0.0; 3 * n],
             h: vec![0.0; r * r],
             g: vec![0.0; r],
@@ -390,7 +400,10 @@ impl Fitter {
             sol: vec![0.0; d.max(r)],
             depth_backup: vec![0.0; n],
             texp: vec![0.0; n * 3 * self.r_exp],
-            tid: vec![0.0; n * 3 * self.r_id],
+            rtid: vec![0.0; n * 3 * pad8(self.r_id)],
+            rtid_rot: [0.0; 9],
+            pw: vec![0.0; n],
+            py: vec![0.0; 2 * n],
             pts_w_id: vec![0.0; self.ni],
             pts_w_exp: vec![0.0; self.ne],
             pts_valid: false,
@@ -472,24 +485,26 @@ impl Fitter {
         kernels::contract_exp(&self.core, &ws.alpha, self.r_exp, &mut ws.texp);
     }
 
-    /// `tid[k][c] = C_kc beta` for every point; `ws.beta` must be current.
-    fn contract_id(&self, ws: &mut FitWorkspace) {
-        kernels::contract_id(&self.core, &ws.beta, self.r_id, &mut ws.tid);
-    }
-
-    /// `ws.pts` from a contraction (`texp` with `beta`, or `tid` with `alpha`): the
-    /// same points as [`Self::update_points`] at a fraction of the cost.
+    /// `ws.pts` from a contraction (`texp` with `beta`, or the rotated `rtid` with
+    /// `alpha`): the same points as [`Self::update_points`] (up to rounding) at a
+    /// fraction of the cost.
     fn points_from(&self, block: Block, ws: &mut FitWorkspace) {
-        let (t, w) = match block {
-            Block::Exp => (&ws.texp, &ws.beta),
-            Block::Id => (&ws.tid, &ws.alpha),
-        };
-        pulp::Arch::new().dispatch(PointsFrom {
-            t,
-            w,
-            mean: &self.mean,
-            pts: &mut ws.pts,
-        });
+        match block {
+            Block::Exp => pulp::Arch::new().dispatch(PointsFrom {
+                t: &ws.texp,
+                w: &ws.beta,
+                mean: &self.mean,
+                pts: &mut ws.pts,
+            }),
+            Block::Id => pulp::Arch::new().dispatch(PointsFromRot {
+                t: &ws.rtid,
+                rp: pad8(self.r_id),
+                rot: ws.rtid_rot,
+                w: &ws.alpha,
+                mean: &self.mean,
+                pts: &mut ws.pts,
+            }),
+        }
     }
 
     /// Data term for the points in `ws.pts`.
@@ -596,11 +611,14 @@ impl Fitter {
     }
 
     /// Adds `scale * (A^T A, A^T y)` of one frame for `block` into `ws.h`, `ws.g`
-    /// (upper triangle of `h` only). The other block's modes must be in `ws.alpha`/`ws.beta`.
+    /// (upper triangle of `h` only). The other block's modes must be in `ws.alpha`/`ws.beta`;
+    /// for the expression block `ws.texp` must be current.
     ///
-    /// The design rows of all weighted points, scaled by `sqrt(w_k)`, are first written
-    /// contiguously into `ws.design` (`A^T y` is summed on the way), then `A^T W A` is
-    /// formed by [`kernels::syrk_upper`], a register-tiled rank-`2N` update.
+    /// Expression block: the design rows of all weighted points are written contiguously
+    /// into `ws.design` (`A^T y` is summed on the way). Identity block: the contraction
+    /// with `beta` is done here, rotated by `R` ([`kernels::contract_id_rot`], rows 0 and
+    /// 1 are the design rows, `A^T y` summed on the way) into `ws.rtid`. Then `A^T W A`
+    /// is formed by [`kernels::syrk_points`], a register-tiled update over the row pairs.
     fn accumulate(&self, block: Block, input: &FitInput, state: &FitState, ws: &mut FitWorkspace, scale: f64) {
         let Some(pose) = state.pose else { return };
         let r = match block {
@@ -612,26 +630,66 @@ impl Fitter {
         let rm = rot.matrix();
         let t = pose.0.translation.vector;
         let sw: f64 = input.weights.iter().sum();
-        let tall = match block {
-            Block::Exp => &ws.texp,
-            Block::Id => &ws.tid,
-        };
-        let m = pulp::Arch::new().dispatch(DesignRows {
-            tall,
-            mean: &self.mean,
-            input,
-            depth: &state.depth,
-            rm: *rm,
-            t,
-            scale: scale / sw,
-            r,
-            rp,
-            design: &mut ws.design,
-            g: &mut ws.g[..r],
-        });
         let hpad = &mut ws.hpad[..rp * rp];
         hpad.iter_mut().for_each(|v| *v = 0.0);
-        kernels::syrk_upper(&ws.design[..2 * m * rp], rp, hpad);
+        match block {
+            Block::Exp => {
+                let m = pulp::Arch::new().dispatch(DesignRows {
+                    tall: &ws.texp,
+                    mean: &self.mean,
+                    input,
+                    depth: &state.depth,
+                    rm: *rm,
+                    t,
+                    scale: scale / sw,
+                    r,
+                    rp,
+                    design: &mut ws.design,
+                    design_w: &mut ws.design_w,
+                    g: &mut ws.g[..r],
+                });
+                kernels::syrk_points(&ws.design, 2 * rp, rp, &ws.design_w[..m], &mut ws.syrk_scratch, hpad);
+            }
+            Block::Id => {
+                let k = &input.intrinsics;
+                let scale = scale / sw;
+                for (((((x, &w), &z), m3), pw), py) in input
+                    .image
+                    .iter()
+                    .zip(input.weights)
+                    .zip(&state.depth)
+                    .zip(self.mean.chunks_exact(3))
+                    .zip(ws.pw.iter_mut())
+                    .zip(ws.py.chunks_exact_mut(2))
+                {
+                    if w > 0.0 {
+                        let qx = (x.x - k.cx) * z / k.fx;
+                        let qy = (x.y - k.cy) * z / k.fy;
+                        *pw = scale * w;
+                        py[0] = qx - (rm[(0, 0)] * m3[0] + rm[(0, 1)] * m3[1] + rm[(0, 2)] * m3[2] + t.x);
+                        py[1] = qy - (rm[(1, 0)] * m3[0] + rm[(1, 1)] * m3[1] + rm[(1, 2)] * m3[2] + t.y);
+                    } else {
+                        *pw = 0.0;
+                        py[0] = 0.0;
+                        py[1] = 0.0;
+                    }
+                }
+                let rot9 = std::array::from_fn(|q| rm[(q / 3, q % 3)]);
+                kernels::contract_id_rot(
+                    &self.core,
+                    &ws.beta,
+                    r,
+                    rp,
+                    &rot9,
+                    &ws.py,
+                    &ws.pw,
+                    &mut ws.rtid,
+                    &mut ws.g[..r],
+                );
+                ws.rtid_rot = rot9;
+                kernels::syrk_points(&ws.rtid, 3 * rp, rp, &ws.pw, &mut ws.syrk_scratch, hpad);
+            }
+        }
         let h = &mut ws.h[..r * r];
         for i in 0..r {
             for (hv, pv) in h[i * r + i..(i + 1) * r].iter_mut().zip(&hpad[i * rp + i..i * rp + r]) {
@@ -735,7 +793,6 @@ impl Fitter {
     /// Identity step of one frame; leaves the new points in `ws.pts`. `ws.alpha` and
     /// `ws.beta` must be current.
     fn id_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
-        self.contract_id(ws);
         self.clear_normal(Block::Id, ws);
         self.accumulate(Block::Id, input, state, ws, 1.0);
         let mut w = std::mem::take(&mut state.w_id);
@@ -874,7 +931,6 @@ impl Fitter {
                 self.clear_normal(Block::Id, ws);
                 for (f, s) in frames.iter().zip(states.iter()) {
                     self.update_modes(s, ws);
-                    self.contract_id(ws);
                     self.accumulate(Block::Id, f, s, ws, 1.0);
                 }
                 self.solve_block(Block::Id, self.params.lambda_id, &mut w_id, ws)?;
@@ -930,6 +986,7 @@ struct DesignRows<'a> {
     r: usize,
     rp: usize,
     design: &'a mut [f64],
+    design_w: &'a mut [f64],
     g: &'a mut [f64],
 }
 
@@ -950,6 +1007,7 @@ impl pulp::WithSimd for DesignRows<'_> {
             r,
             rp,
             design,
+            design_w,
             g,
         } = self;
         let k = &input.intrinsics;
@@ -961,7 +1019,6 @@ impl pulp::WithSimd for DesignRows<'_> {
                 continue;
             }
             let wk = scale * w;
-            let sk = wk.sqrt();
             // The core of this point contracted with the fixed block (precomputed).
             let tcon = &tall[3 * idx * r..3 * (idx + 1) * r];
             let (t0s, rest) = tcon.split_at(r);
@@ -981,12 +1038,13 @@ impl pulp::WithSimd for DesignRows<'_> {
                 .zip(g.iter_mut())
             {
                 let (v0, v1) = (a00 * t0 + a01 * t1 + a02 * t2, a10 * t0 + a11 * t1 + a12 * t2);
-                *o0 = sk * v0;
-                *o1 = sk * v1;
+                *o0 = v0;
+                *o1 = v1;
                 *gv += (wk * v0) * y0 + (wk * v1) * y1;
             }
             r0[r..].iter_mut().for_each(|v| *v = 0.0);
             r1[r..].iter_mut().for_each(|v| *v = 0.0);
+            design_w[m] = wk;
             m += 1;
         }
         m
@@ -1015,6 +1073,37 @@ impl pulp::WithSimd for PointsFrom<'_> {
         {
             for c in 0..3 {
                 p[c] = m[c] + dot(&rows[c * r..(c + 1) * r], self.w);
+            }
+        }
+    }
+}
+
+/// `pts[k] = mean[k] + R^T v_k` with `v_k[i] = <t[k][i], w>` (`t`: `[N][3][rp]`, the
+/// rotated contraction; `R` row-major) as a [`pulp::WithSimd`] operation.
+struct PointsFromRot<'a> {
+    t: &'a [f64],
+    rp: usize,
+    rot: [f64; 9],
+    w: &'a [f64],
+    mean: &'a [f64],
+    pts: &'a mut [Point3<f64>],
+}
+
+impl pulp::WithSimd for PointsFromRot<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let (r, rp, rot) = (self.w.len(), self.rp, self.rot);
+        for ((p, rows), m) in self
+            .pts
+            .iter_mut()
+            .zip(self.t.chunks_exact(3 * rp))
+            .zip(self.mean.chunks_exact(3))
+        {
+            let v: [f64; 3] = std::array::from_fn(|i| dot(&rows[i * rp..i * rp + r], self.w));
+            for c in 0..3 {
+                p[c] = m[c] + (rot[c] * v[0] + rot[3 + c] * v[1] + rot[6 + c] * v[2]);
             }
         }
     }
@@ -1057,11 +1146,32 @@ fn mat_t_vec(u: &[f64], rows: usize, cols: usize, w: &[f64], out: &mut [f64]) {
 /// In-place Cholesky solve of the symmetric positive definite `a` (`n x n`, row-major,
 /// overwritten) with right-hand side `b` (overwritten by the solution).
 pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> Result<()> {
+    // The factorisation as row dot products (contiguous, vectorised), compiled for the
+    // dispatched CPU level.
+    pulp::Arch::new().dispatch(Cholesky { a, n, b })
+}
+
+struct Cholesky<'a> {
+    a: &'a mut [f64],
+    n: usize,
+    b: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Cholesky<'_> {
+    type Output = Result<()>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Result<()> {
+        cholesky_inner(self.a, self.n, self.b)
+    }
+}
+
+#[inline(always)]
+fn cholesky_inner(a: &mut [f64], n: usize, b: &mut [f64]) -> Result<()> {
     for j in 0..n {
-        let mut d = a[j * n + j];
-        for k in 0..j {
-            d -= a[j * n + k] * a[j * n + k];
-        }
+        let (_, from_j) = a.split_at_mut(j * n);
+        let (rowj, below) = from_j.split_at_mut(n);
+        let d = rowj[j] - dot(&rowj[..j], &rowj[..j]);
         if !(d > 0.0 && d.is_finite()) {
             return Err(Error::Numerical {
                 operation: "fit normal equations",
@@ -1069,21 +1179,13 @@ pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> Result<(
             });
         }
         let d = d.sqrt();
-        a[j * n + j] = d;
-        for i in j + 1..n {
-            let mut s = a[i * n + j];
-            for k in 0..j {
-                s -= a[i * n + k] * a[j * n + k];
-            }
-            a[i * n + j] = s / d;
+        rowj[j] = d;
+        for rowi in below.chunks_exact_mut(n) {
+            rowi[j] = (rowi[j] - dot(&rowi[..j], &rowj[..j])) / d;
         }
     }
     for i in 0..n {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= a[i * n + k] * b[k];
-        }
-        b[i] = s / a[i * n + i];
+        b[i] = (b[i] - dot(&a[i * n..i * n + i], &b[..i])) / a[i * n + i];
     }
     for i in (0..n).rev() {
         let mut s = b[i];

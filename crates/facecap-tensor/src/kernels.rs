@@ -1,25 +1,28 @@
 //! Hot kernels of the fitter ([`crate::fit`]), compiled for the CPU found at run time
 //! (`pulp::Arch::dispatch`: AVX2 + FMA where available, portable scalar code otherwise).
 //!
-//! * [`contract_exp`] / [`contract_id`]: the per-point core slices (stored in `f32`,
-//!   widened exactly to `f64`, all arithmetic in `f64`) contracted with the identity
-//!   mode coordinates `alpha` (giving `r_exp` values per point and coordinate) or the
-//!   expression mode coordinates `beta` (giving `r_id` values). These two passes read
-//!   the whole restricted core (500 points: 2.35 MB in `f32`) and are memory bound;
-//!   [`contract_id`] walks the points in reverse order so that it starts on the slices
-//!   [`contract_exp`] read last, which are still in the L2 cache.
+//! * [`contract_exp`] / [`contract_id_rot`]: the per-point core slices (stored in
+//!   `f32`, widened exactly to `f64`, all arithmetic in `f64`) contracted with the
+//!   identity mode coordinates `alpha` (giving `r_exp` values per point and coordinate)
+//!   or the expression mode coordinates `beta` (giving `r_id` values per point and
+//!   coordinate, rotated at once by the pose rotation `R`: the first two rotated rows
+//!   are the identity design rows, and `A^T W y` is summed on the way, so no separate
+//!   design pass is needed). These two passes read the whole restricted core (500
+//!   points: 2.35 MB in `f32`) and are memory bound; [`contract_id_rot`] walks the
+//!   points in reverse order so that it starts on the slices [`contract_exp`] read
+//!   last, which are still in the L2 cache.
 //! * [`points`]: `m + <C, alpha kron beta>` per point and coordinate.
-//! * [`syrk_upper`]: `H += D^T D` (upper-triangle tiles) for the design rows `D`
-//!   (`[M][rp]`, `rp` a multiple of 8, rows already scaled by `sqrt(w_k)`), a register
-//!   tiled rank-`M` update: 4 x 8 tiles of `H` held in registers while a block of 64
-//!   rows (in L1) streams past, fused multiply-adds where the CPU has them.
+//! * [`syrk_points`]: `H += sum_k w_k (d_k0 d_k0^T + d_k1 d_k1^T)` (upper-triangle
+//!   tiles) for two rows per point (`rp` a multiple of 8), a register-tiled update:
+//!   4 x 8 tiles of `H` held in registers while a block of 32 points (in L1) streams
+//!   past, fused multiply-adds where the CPU has them.
 //!
 //! Each kernel has a slow reference in the tests below (seeded property tests).
 
 use pulp::{Simd, WithSimd};
 
-/// Rows per cache block of [`syrk_upper`] (64 rows x 56 x 8 bytes = 28 KB, fits L1).
-const SYRK_ROWS: usize = 64;
+/// Points per cache block of [`syrk_points`] (32 points x 2 rows x 56 x 8 bytes = 28 KB).
+const SYRK_POINTS: usize = 32;
 
 /// `a . b` with `a` in `f32` (widened exactly), eight independent accumulators so
 /// the loop vectorises.
@@ -85,66 +88,106 @@ pub(crate) fn contract_exp(core: &[f32], alpha: &[f64], r_exp: usize, out: &mut 
     });
 }
 
-struct ContractId<'a> {
+struct ContractIdRot<'a> {
     core: &'a [f32],
     beta: &'a [f64],
     r_id: usize,
+    rp: usize,
+    rot: &'a [f64; 9],
+    y: &'a [f64],
+    w: &'a [f64],
     out: &'a mut [f64],
+    g: &'a mut [f64],
 }
 
-impl WithSimd for ContractId<'_> {
+impl WithSimd for ContractIdRot<'_> {
     type Output = ();
     #[inline(always)]
     fn with_simd<S: Simd>(self, _simd: S) {
-        let ri = self.r_id;
-        let blk = ri * self.beta.len();
+        let ContractIdRot {
+            core,
+            beta,
+            r_id: ri,
+            rp,
+            rot,
+            y,
+            w,
+            out,
+            g,
+        } = self;
+        let re = beta.len();
+        let blk = ri * re;
         // Reverse order: start where `contract_exp` ended (cache reuse).
-        for (core, out) in self.core.chunks_exact(blk).zip(self.out.chunks_exact_mut(ri)).rev() {
-            // Four expression modes per pass over `out`.
-            let rows4 = core.chunks_exact(4 * ri);
-            let rest = rows4.remainder();
-            let b4 = self.beta.chunks_exact(4);
-            let brest = b4.remainder();
-            out.iter_mut().for_each(|o| *o = 0.0);
-            let n = out.len();
-            for (rows, b) in rows4.zip(b4) {
-                let (c0, c1, c2, c3) = (
-                    &rows[..n],
-                    &rows[ri..ri + n],
-                    &rows[2 * ri..2 * ri + n],
-                    &rows[3 * ri..3 * ri + n],
-                );
-                for j in 0..n {
-                    out[j] += (b[0] * f64::from(c0[j]) + b[1] * f64::from(c1[j]))
-                        + (b[2] * f64::from(c2[j]) + b[3] * f64::from(c3[j]));
+        for (((core, out), yk), &wk) in core
+            .chunks_exact(3 * blk)
+            .zip(out.chunks_exact_mut(3 * rp))
+            .zip(y.chunks_exact(2))
+            .zip(w)
+            .rev()
+        {
+            for j in 0..ri {
+                let mut t = [0.0f64; 3];
+                for (c, tc) in t.iter_mut().enumerate() {
+                    for (e, &b) in beta.iter().enumerate() {
+                        *tc += b * f64::from(core[c * blk + e * ri + j]);
+                    }
                 }
-            }
-            for (b, row) in brest.iter().zip(rest.chunks_exact(ri)) {
-                for (o, cv) in out.iter_mut().zip(row) {
-                    *o += b * f64::from(*cv);
+                let mut o = [0.0f64; 3];
+                for (i, oi) in o.iter_mut().enumerate() {
+                    *oi = rot[3 * i] * t[0] + rot[3 * i + 1] * t[1] + rot[3 * i + 2] * t[2];
+                    out[i * rp + j] = *oi;
                 }
+                g[j] += wk * (yk[0] * o[0] + yk[1] * o[1]);
             }
         }
     }
 }
 
-/// `out[k][c][j] = sum_e core[k][c][e][j] beta[e]` (`out`: `[N][3][r_id]`), points in
-/// decreasing order.
-pub(crate) fn contract_id(core: &[f32], beta: &[f64], r_id: usize, out: &mut [f64]) {
+/// Identity-block contraction, rotated: with `t[k][c][j] = sum_e core[k][c][e][j] beta[e]`,
+/// `out[k][i][j] = sum_c rot[i][c] t[k][c][j]` (`out`: `[N][3][rp]`, columns `r_id..rp`
+/// untouched) and `g[j] += w[k] (y[k][0] out[k][0][j] + y[k][1] out[k][1][j])`. Points in
+/// decreasing order. `rot` is the row-major rotation matrix.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn contract_id_rot(
+    core: &[f32],
+    beta: &[f64],
+    r_id: usize,
+    rp: usize,
+    rot: &[f64; 9],
+    y: &[f64],
+    w: &[f64],
+    out: &mut [f64],
+    g: &mut [f64],
+) {
     #[cfg(target_arch = "x86_64")]
     if let Some(v3) = pulp::x86::V3::try_new() {
         return pulp::Simd::vectorize(
             v3,
-            avx2::ContractId {
+            avx2::ContractIdRot {
                 v3,
                 core,
                 beta,
                 r_id,
+                rp,
+                rot,
+                y,
+                w,
                 out,
+                g,
             },
         );
     }
-    pulp::Arch::new().dispatch(ContractId { core, beta, r_id, out });
+    pulp::Arch::new().dispatch(ContractIdRot {
+        core,
+        beta,
+        r_id,
+        rp,
+        rot,
+        y,
+        w,
+        out,
+        g,
+    });
 }
 
 struct Points<'a> {
@@ -185,7 +228,10 @@ pub(crate) fn points(core: &[f32], mean: &[f64], ab: &[f64], out: &mut [f64]) {
 
 struct Syrk<'a> {
     d: &'a [f64],
+    ps: usize,
     rp: usize,
+    w: &'a [f64],
+    scratch: &'a mut [f64],
     h: &'a mut [f64],
 }
 
@@ -193,18 +239,37 @@ impl WithSimd for Syrk<'_> {
     type Output = ();
     #[inline(always)]
     fn with_simd<S: Simd>(self, simd: S) {
-        let Syrk { d, rp, h } = self;
+        let Syrk {
+            d,
+            ps,
+            rp,
+            w,
+            scratch,
+            h,
+        } = self;
         // Vectors per 8-wide tile row (2 with AVX2, 8 in the scalar fallback).
         let nv = 8 / S::F64_LANES;
         let zero = simd.splat_f64s(0.0);
-        for block in d.chunks(SYRK_ROWS * rp) {
+        for (block, wb) in d.chunks(SYRK_POINTS * ps).zip(w.chunks(SYRK_POINTS)) {
+            // The block's rows contiguously, `[2 n][rp]`, plus a weighted copy (in L1).
+            let n2 = 2 * wb.len();
+            let (rows, wrows) = scratch[..2 * n2 * rp].split_at_mut(n2 * rp);
+            for ((pt, &wk), (r2, wr2)) in block
+                .chunks(ps)
+                .zip(wb)
+                .zip(rows.chunks_exact_mut(2 * rp).zip(wrows.chunks_exact_mut(2 * rp)))
+            {
+                r2.copy_from_slice(&pt[..2 * rp]);
+                for (o, v) in wr2.iter_mut().zip(&pt[..2 * rp]) {
+                    *o = wk * v;
+                }
+            }
             for i0 in (0..rp).step_by(4) {
                 for j0 in (i0 / 8 * 8..rp).step_by(8) {
                     let mut acc = [[zero; 8]; 4];
-                    for row in block.chunks_exact(rp) {
+                    for (row, wrow) in rows.chunks_exact(rp).zip(wrows.chunks_exact(rp)) {
                         let (bv, _) = S::as_simd_f64s(&row[j0..j0 + 8]);
-                        let a = [row[i0], row[i0 + 1], row[i0 + 2], row[i0 + 3]];
-                        for (acc_i, &ai) in acc.iter_mut().zip(&a) {
+                        for (acc_i, &ai) in acc.iter_mut().zip(&wrow[i0..i0 + 4]) {
                             let av = simd.splat_f64s(ai);
                             for (acc_v, &b) in acc_i[..nv].iter_mut().zip(bv) {
                                 *acc_v = simd.mul_add_e_f64s(av, b, *acc_v);
@@ -224,15 +289,30 @@ impl WithSimd for Syrk<'_> {
     }
 }
 
-/// `h += sum_m d_m d_m^T` on the tiles of the `rp x rp` row-major `h` that cover its
-/// upper triangle (some entries below the diagonal are written too; callers read the
-/// upper triangle only). `d` holds `M` rows of length `rp`; `rp` must be a multiple
-/// of 8 (pad the rows with zeros).
-pub(crate) fn syrk_upper(d: &[f64], rp: usize, h: &mut [f64]) {
+/// `h += sum_k w_k (d_k0 d_k0^T + d_k1 d_k1^T)` on the tiles of the `rp x rp`
+/// row-major `h` that cover its upper triangle (some entries below the diagonal are
+/// written too; callers read the upper triangle only). Point `k`'s two rows of length
+/// `rp` start at `d[k ps]` and `d[k ps + rp]`; there are `w.len()` points. `rp` must be
+/// a multiple of 8 (pad the rows with zeros), `ps >= 2 rp`; `scratch` must hold
+/// [`syrk_scratch_len`]`(rp)` values.
+pub(crate) fn syrk_points(d: &[f64], ps: usize, rp: usize, w: &[f64], scratch: &mut [f64], h: &mut [f64]) {
     debug_assert_eq!(rp % 8, 0);
-    debug_assert_eq!(d.len() % rp, 0);
+    debug_assert!(ps >= 2 * rp && d.len() >= w.len().saturating_sub(1) * ps + 2 * rp);
     debug_assert_eq!(h.len(), rp * rp);
-    pulp::Arch::new().dispatch(Syrk { d, rp, h });
+    debug_assert!(scratch.len() >= syrk_scratch_len(rp));
+    pulp::Arch::new().dispatch(Syrk {
+        d,
+        ps,
+        rp,
+        w,
+        scratch,
+        h,
+    });
+}
+
+/// Scratch length of [`syrk_points`] for padded rows of length `rp`.
+pub(crate) fn syrk_scratch_len(rp: usize) -> usize {
+    4 * SYRK_POINTS * rp
 }
 
 /// AVX2 + FMA versions with explicit `f32 -> f64` widening (`vcvtps2pd`): the
@@ -294,62 +374,110 @@ mod avx2 {
         }
     }
 
-    /// `out[n] = sum_e beta[e] core[e][4 (q + n) .. 4 (q + n) + 4]` for `n < N`.
+    /// Columns `4 q .. 4 (q + N)` of one point of [`super::contract_id_rot`]: the three
+    /// coordinates' contractions in `3 N` registers, rotated, stored, and added to `g`.
     #[inline(always)]
-    fn block<const N: usize>(v3: V3, core: &[f32], beta: &[f64], ri: usize, q: usize, out: &mut [[f64; 4]]) {
-        let mut acc = [v3.splat_f64x4(0.0); N];
-        for (row, &b) in core.chunks_exact(ri).zip(beta) {
-            let bv = v3.splat_f64x4(b);
-            let c = &pulp::as_arrays::<4, f32>(row).0[q..q + N];
-            for (a, c) in acc.iter_mut().zip(c) {
-                *a = v3.mul_add_f64x4(bv, widen(v3, *c), *a);
+    #[allow(clippy::too_many_arguments)]
+    fn rot_block<const N: usize>(
+        v3: V3,
+        core: &[f32],
+        beta: &[f64],
+        ri: usize,
+        rp: usize,
+        q: usize,
+        rot: &[f64; 9],
+        wy: [f64; 2],
+        out: &mut [f64],
+        g: &mut [f64],
+    ) {
+        let blk = ri * beta.len();
+        let mut acc = [[v3.splat_f64x4(0.0); N]; 3];
+        for (acc_c, cc) in acc.iter_mut().zip(core.chunks_exact(blk)) {
+            for (row, &b) in cc.chunks_exact(ri).zip(beta) {
+                let bv = v3.splat_f64x4(b);
+                let c = &pulp::as_arrays::<4, f32>(row).0[q..q + N];
+                for (a, c) in acc_c.iter_mut().zip(c) {
+                    *a = v3.mul_add_f64x4(bv, widen(v3, *c), *a);
+                }
             }
         }
-        for (o, a) in out.iter_mut().zip(acc) {
-            *o = cast(a);
+        let (wy0, wy1) = (v3.splat_f64x4(wy[0]), v3.splat_f64x4(wy[1]));
+        let [acc0, acc1, acc2] = acc;
+        for (n, ((t0, t1), t2)) in acc0.into_iter().zip(acc1).zip(acc2).enumerate() {
+            let mut o = [t0; 3];
+            for (i, oi) in o.iter_mut().enumerate() {
+                let v = v3.mul_f64x4(v3.splat_f64x4(rot[3 * i]), t0);
+                let v = v3.mul_add_f64x4(v3.splat_f64x4(rot[3 * i + 1]), t1, v);
+                *oi = v3.mul_add_f64x4(v3.splat_f64x4(rot[3 * i + 2]), t2, v);
+                pulp::as_arrays_mut::<4, f64>(&mut out[i * rp..i * rp + ri]).0[q + n] = cast(*oi);
+            }
+            let gq = &mut pulp::as_arrays_mut::<4, f64>(&mut g[..ri]).0[q + n];
+            let gv = v3.mul_add_f64x4(wy0, o[0], cast(*gq));
+            *gq = cast(v3.mul_add_f64x4(wy1, o[1], gv));
         }
     }
 
-    pub(super) struct ContractId<'a> {
+    pub(super) struct ContractIdRot<'a> {
         pub v3: V3,
         pub core: &'a [f32],
         pub beta: &'a [f64],
         pub r_id: usize,
+        pub rp: usize,
+        pub rot: &'a [f64; 9],
+        pub y: &'a [f64],
+        pub w: &'a [f64],
         pub out: &'a mut [f64],
+        pub g: &'a mut [f64],
     }
 
-    impl WithSimd for ContractId<'_> {
+    impl WithSimd for ContractIdRot<'_> {
         type Output = ();
         #[inline(always)]
         fn with_simd<S: Simd>(self, _simd: S) {
-            let v3 = self.v3;
-            let ri = self.r_id;
-            let re = self.beta.len();
+            let ContractIdRot {
+                v3,
+                core,
+                beta,
+                r_id: ri,
+                rp,
+                rot,
+                y,
+                w,
+                out,
+                g,
+            } = self;
+            let re = beta.len();
             let blk = ri * re;
-            for (core, out) in self.core.chunks_exact(blk).zip(self.out.chunks_exact_mut(ri)).rev() {
-                let (o4, orem) = pulp::as_arrays_mut::<4, f64>(out);
-                let q4 = o4.len();
-                // Blocks of 4 x 4 outputs (independent FMA chains), summed over the
-                // expression modes; then 2 x 4 and 1 x 4.
+            let q4 = ri / 4;
+            for (((core, out), yk), &wk) in core
+                .chunks_exact(3 * blk)
+                .zip(out.chunks_exact_mut(3 * rp))
+                .zip(y.chunks_exact(2))
+                .zip(w)
+                .rev()
+            {
+                let wy = [wk * yk[0], wk * yk[1]];
                 let mut q = 0;
-                while q + 4 <= q4 {
-                    block::<4>(v3, core, self.beta, ri, q, &mut o4[q..q + 4]);
-                    q += 4;
-                }
-                if q + 2 <= q4 {
-                    block::<2>(v3, core, self.beta, ri, q, &mut o4[q..q + 2]);
+                while q + 2 <= q4 {
+                    rot_block::<2>(v3, core, beta, ri, rp, q, rot, wy, out, g);
                     q += 2;
                 }
                 if q < q4 {
-                    block::<1>(v3, core, self.beta, ri, q, &mut o4[q..q + 1]);
+                    rot_block::<1>(v3, core, beta, ri, rp, q, rot, wy, out, g);
                 }
-                for (jr, o) in orem.iter_mut().enumerate() {
-                    let j = 4 * q4 + jr;
-                    let mut acc = 0.0;
-                    for (row, &b) in core.chunks_exact(ri).zip(self.beta) {
-                        acc += b * f64::from(row[j]);
+                for j in 4 * q4..ri {
+                    let mut t = [0.0f64; 3];
+                    for (c, tc) in t.iter_mut().enumerate() {
+                        for (e, &b) in beta.iter().enumerate() {
+                            *tc += b * f64::from(core[c * blk + e * ri + j]);
+                        }
                     }
-                    *o = acc;
+                    let mut o = [0.0f64; 3];
+                    for (i, oi) in o.iter_mut().enumerate() {
+                        *oi = rot[3 * i] * t[0] + rot[3 * i + 1] * t[1] + rot[3 * i + 2] * t[2];
+                        out[i * rp + j] = *oi;
+                    }
+                    g[j] += wy[0] * o[0] + wy[1] * o[1];
                 }
             }
         }
@@ -397,8 +525,37 @@ mod tests {
             let c = |p: usize, e: usize, j: usize| f64::from(core[(p * re + e) * ri + j]);
             let mut te = vec![0.0; n * 3 * re];
             contract_exp(&core, &alpha, re, &mut te);
-            let mut ti = vec![0.0; n * 3 * ri];
-            contract_id(&core, &beta, ri, &mut ti);
+            let rp = ri.div_ceil(8) * 8;
+            let mut ti = vec![7.0; n * 3 * rp];
+            let rot = [0.36, 0.48, -0.8, -0.8, 0.6, 0.0, 0.48, 0.64, 0.6];
+            let y: Vec<f64> = (0..2 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let w: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+            let g0: Vec<f64> = (0..ri).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let mut g = g0.clone();
+            contract_id_rot(&core, &beta, ri, rp, &rot, &y, &w, &mut ti, &mut g);
+            for j in 0..ri {
+                let mut gr = g0[j];
+                for k in 0..n {
+                    let tt: Vec<f64> = (0..3)
+                        .map(|cc| (0..re).map(|e| c(k * 3 + cc, e, j) * beta[e]).sum::<f64>())
+                        .collect();
+                    for i in 0..3 {
+                        let r = rot[3 * i] * tt[0] + rot[3 * i + 1] * tt[1] + rot[3 * i + 2] * tt[2];
+                        let v = ti[(k * 3 + i) * rp + j];
+                        assert!(close(v, r, re as f64), "({k},{i},{j}) {v} vs {r}");
+                        if i < 2 {
+                            gr += w[k] * y[2 * k + i] * r;
+                        }
+                    }
+                }
+                assert!(close(g[j], gr, (n * re) as f64), "g[{j}] {} vs {gr}", g[j]);
+            }
+            for k in 0..3 * n {
+                assert!(
+                    ti[k * rp + ri..(k + 1) * rp].iter().all(|&v| v == 7.0),
+                    "padding written"
+                );
+            }
             let ab: Vec<f64> = (0..re * ri).map(|q| beta[q / ri] * alpha[q % ri]).collect();
             let mut pts = vec![0.0; n * 3];
             points(&core, &mean, &ab, &mut pts);
@@ -406,10 +563,6 @@ mod tests {
                 for e in 0..re {
                     let r: f64 = (0..ri).map(|j| c(p, e, j) * alpha[j]).sum();
                     assert!(close(te[p * re + e], r, ri as f64), "{} vs {r}", te[p * re + e]);
-                }
-                for j in 0..ri {
-                    let r: f64 = (0..re).map(|e| c(p, e, j) * beta[e]).sum();
-                    assert!(close(ti[p * ri + j], r, re as f64), "{} vs {r}", ti[p * ri + j]);
                 }
                 let r: f64 = mean[p]
                     + (0..re)
@@ -423,14 +576,29 @@ mod tests {
     #[test]
     fn syrk_matches_reference() {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
-        for &(m, rp) in &[(1000usize, 56usize), (7, 8), (130, 16), (1, 64)] {
-            let d: Vec<f64> = (0..m * rp).map(|_| rng.random_range(-1.0..1.0)).collect();
+        for &(m, rp, rows) in &[
+            (500usize, 56usize, 3usize),
+            (7, 8, 2),
+            (65, 16, 3),
+            (1, 64, 2),
+            (33, 8, 2),
+        ] {
+            let ps = rows * rp;
+            let d: Vec<f64> = (0..m * ps).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let w: Vec<f64> = (0..m).map(|_| rng.random_range(0.0..1.0)).collect();
             let h0: Vec<f64> = (0..rp * rp).map(|_| rng.random_range(-1.0..1.0)).collect();
             let mut h = h0.clone();
-            syrk_upper(&d, rp, &mut h);
+            let mut sc = vec![0.0; syrk_scratch_len(rp)];
+            syrk_points(&d, ps, rp, &w, &mut sc, &mut h);
             for i in 0..rp {
                 for j in i..rp {
-                    let r: f64 = h0[i * rp + j] + (0..m).map(|q| d[q * rp + i] * d[q * rp + j]).sum::<f64>();
+                    let r: f64 = h0[i * rp + j]
+                        + (0..m)
+                            .map(|k| {
+                                let b = k * ps;
+                                w[k] * (d[b + i] * d[b + j] + d[b + rp + i] * d[b + rp + j])
+                            })
+                            .sum::<f64>();
                     assert!(close(h[i * rp + j], r, m as f64), "({i},{j}) {} vs {r}", h[i * rp + j]);
                 }
             }
