@@ -604,4 +604,79 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn portable_fallbacks_match_dispatched_kernels() {
+        // The generic code paths (what a CPU without AVX2 runs), forced with pulp's
+        // scalar level, against the dispatched ones.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let (n, ri, re) = (9usize, 13usize, 5usize);
+        let rp = ri.div_ceil(8) * 8;
+        let core: Vec<f32> = (0..n * 3 * ri * re).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let mean: Vec<f64> = (0..n * 3).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let alpha: Vec<f64> = (0..ri).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let beta: Vec<f64> = (0..re).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let ab: Vec<f64> = (0..re * ri).map(|q| beta[q / ri] * alpha[q % ri]).collect();
+        let rot = [0.36, 0.48, -0.8, -0.8, 0.6, 0.0, 0.48, 0.64, 0.6];
+        let y: Vec<f64> = (0..2 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let w: Vec<f64> = (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+        let scalar = pulp::Scalar::new();
+        let same = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| close(*x, *y, 100.0));
+
+        let (mut te1, mut te2) = (vec![0.0; n * 3 * re], vec![0.0; n * 3 * re]);
+        contract_exp(&core, &alpha, re, &mut te1);
+        ContractExp {
+            core: &core,
+            alpha: &alpha,
+            r_exp: re,
+            out: &mut te2,
+        }
+        .with_simd(scalar);
+        assert!(same(&te1, &te2));
+
+        let (mut p1, mut p2) = (vec![0.0; n * 3], vec![0.0; n * 3]);
+        points(&core, &mean, &ab, &mut p1);
+        Points {
+            core: &core,
+            mean: &mean,
+            ab: &ab,
+            out: &mut p2,
+        }
+        .with_simd(scalar);
+        assert!(same(&p1, &p2));
+
+        let (mut o1, mut o2) = (vec![0.0; n * 3 * rp], vec![0.0; n * 3 * rp]);
+        let (mut g1, mut g2) = (vec![0.0; ri], vec![0.0; ri]);
+        contract_id_rot(&core, &beta, ri, rp, &rot, &y, &w, &mut o1, &mut g1);
+        ContractIdRot {
+            core: &core,
+            beta: &beta,
+            r_id: ri,
+            rp,
+            rot: &rot,
+            y: &y,
+            w: &w,
+            out: &mut o2,
+            g: &mut g2,
+        }
+        .with_simd(scalar);
+        assert!(same(&o1, &o2) && same(&g1, &g2));
+
+        let d: Vec<f64> = (0..n * 3 * rp).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let (mut h1, mut h2) = (vec![0.0; rp * rp], vec![0.0; rp * rp]);
+        let mut sc = vec![0.0; syrk_scratch_len(rp)];
+        syrk_points(&d, 3 * rp, rp, &w, &mut sc, &mut h1);
+        Syrk {
+            d: &d,
+            ps: 3 * rp,
+            rp,
+            w: &w,
+            scratch: &mut sc,
+            h: &mut h2,
+        }
+        .with_simd(scalar);
+        for i in 0..rp {
+            assert!(same(&h1[i * rp + i..(i + 1) * rp], &h2[i * rp + i..(i + 1) * rp]));
+        }
+    }
 }
