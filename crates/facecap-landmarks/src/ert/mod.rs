@@ -568,8 +568,12 @@ fn extract_features(
         };
         let qx = (m[0] * d[0] + m[1] * d[1]) + ax;
         let qy = (m[2] * d[0] + m[3] * d[1]) + ay;
-        let x = (bt.sx * f64::from(qx) + bt.l + 0.5).floor();
-        let y = (bt.sy * f64::from(qy) + bt.t + 0.5).floor();
+        // nearest pixel `floor(v + 0.5)`: for `v + 0.5 >= 0` the truncating cast is the
+        // floor, and `floor(u) >= 0 <=> u >= 0`, `floor(u) < w <=> u < w` for integer
+        // `w` (NaN fails both), so this is dlib's rounding and bounds test without a
+        // call to `floor`
+        let x = bt.sx * f64::from(qx) + bt.l + 0.5;
+        let y = bt.sy * f64::from(qy) + bt.t + 0.5;
         *o = if x >= 0.0 && x < wf && y >= 0.0 && y < hf {
             pixels.get(y as usize * w + x as usize).map_or(0.0, |&p| f32::from(p))
         } else {
