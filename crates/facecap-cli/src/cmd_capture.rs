@@ -341,6 +341,8 @@ struct SolveStage<'a> {
     muscle_run: Option<&'a mut crate::capture_extras::MuscleRun>,
     tensor_run: Option<&'a mut crate::capture_extras::TensorRun>,
     bar: crate::progress::Bar,
+    /// Whether `run` advances the progress bar (not when tracking already did).
+    count_progress: bool,
     sheet: Vec<(u64, GrayImage, FrameOut)>,
     frames: Vec<FrameOut>,
     faces_found: u64,
@@ -428,7 +430,9 @@ impl SolveStage<'_> {
                 self.sheet.push((msg.index, gray, out.clone()));
             }
             self.frames.push(out);
-            self.bar.inc();
+            if self.count_progress {
+                self.bar.inc();
+            }
         }
         Ok(())
     }
@@ -511,6 +515,7 @@ fn capture_one(
         muscle_run: muscle_run.as_mut(),
         tensor_run: tensor_run.as_mut(),
         bar: progress.bar(video, info.frame_count),
+        count_progress: true,
         sheet: Vec::new(),
         frames: Vec::new(),
         faces_found: 0,
@@ -536,8 +541,10 @@ fn capture_one(
         let solver_ref = &solver;
         let worker = scope.spawn(move || -> anyhow::Result<Vec<Tracked>> {
             if calibrate {
-                // the neutral calibration needs every frame's landmarks first
-                Ok(track_rx.into_iter().collect())
+                // the neutral calibration needs every frame's landmarks first; the
+                // progress bar follows tracking here, the solving pass does not move it
+                stage_ref.count_progress = false;
+                Ok(track_rx.into_iter().inspect(|_| stage_ref.bar.inc()).collect())
             } else {
                 stage_ref.run(solver_ref, track_rx).map(|()| Vec::new())
             }
