@@ -116,7 +116,11 @@ fn tracker(params: TrackerParams) -> (LandmarkTracker<MockFinder, MockRegressor>
 
 #[test]
 fn detects_once_then_lk_carries_the_face() {
-    let (t, calls) = tracker(TrackerParams::default());
+    // LK for every shift above the threshold (no translation-only carrying)
+    let (t, calls) = tracker(TrackerParams {
+        translate_max: 0.0,
+        ..TrackerParams::default()
+    });
     let mut ws = t.new_workspace();
     let mut state = TrackerState::new();
     let mut out = TrackedFrame::default();
@@ -235,6 +239,10 @@ fn parameters_are_validated() {
             ..TrackerParams::default()
         },
         TrackerParams {
+            translate_max: f64::NAN,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
             agree_scale: 0.0,
             ..TrackerParams::default()
         },
@@ -274,4 +282,43 @@ fn parameters_are_validated() {
             "{e}"
         );
     }
+}
+
+/// Small shifts (above the LK threshold, up to `translate_max`) move the shape by
+/// the motion test's translation without LK; each frame's step lands close to the
+/// true shift (the mock regressor returns the shape it is started from, so this is
+/// the carrying alone, with no ERT to correct it).
+#[test]
+fn small_shifts_are_carried_by_the_motion_translation() {
+    let (t, calls) = tracker(TrackerParams {
+        ert_init: facecap_landmarks::tracker::ErtInit::PreviousShape,
+        ..TrackerParams::default()
+    });
+    let mut ws = t.new_workspace();
+    let mut state = TrackerState::new();
+    let mut out = TrackedFrame::default();
+    let (vx, vy) = (1.6, -0.9); // px per frame, |v| = 1.8 px: between 1 and 3 px
+    let mut prev: Option<Vec<(f64, f64)>> = None;
+    for k in 0..12 {
+        let img = texture(320, 240, vx * k as f64, vy * k as f64);
+        let rep = t
+            .track_into(&img, k as f64 / 30.0, &mut ws, &mut state, &mut out)
+            .unwrap();
+        assert!(out.success, "frame {k}");
+        let pts: Vec<(f64, f64)> = out.landmarks.points.iter().map(|p| (p.x, p.y)).collect();
+        if k > 0 {
+            assert_eq!(rep.action, FrameAction::Tracked, "frame {k}");
+            assert!(
+                !rep.lk_ran,
+                "frame {k}: LK ran for a {:.2} px shift",
+                rep.motion_estimate
+            );
+            let p0 = prev.as_ref().unwrap();
+            let (sx, sy) = (pts[30].0 - p0[30].0, pts[30].1 - p0[30].1);
+            let err = ((sx - vx).powi(2) + (sy - vy).powi(2)).sqrt();
+            assert!(err < 0.5, "frame {k}: step ({sx:.2}, {sy:.2}) vs ({vx}, {vy})");
+        }
+        prev = Some(pts);
+    }
+    assert_eq!(calls.load(Ordering::SeqCst), 1);
 }

@@ -15,7 +15,9 @@
 //!      (`G = Σ ∇I ∇Iᵀ`, `b = Σ (J - I) ∇I`), plus the RMS of the grey-level
 //!      change this translation leaves unexplained. About 0.4 M instructions per
 //!      frame, against ~5 M for the two pyramids + LK on 21 points.
-//!    - If `|d| > lk_motion_threshold` or the unexplained RMS exceeds 12 grey
+//!    - If `lk_motion_threshold < |d| <= translate_max` and the unexplained RMS is
+//!      at most 12 grey levels, the previous shape moves by `d` (a small shift; no
+//!      LK). If `|d| > translate_max` or the unexplained RMS exceeds 12 grey
 //!      levels (not a small shift: a cut, a flat frame, fast motion), LK carries
 //!      the 21 rigid landmarks (nose 27-35, eyes 36-47) to this frame. If fewer than
 //!      `min_lk_fraction` of them are tracked the face is lost and we fall back to
@@ -53,7 +55,8 @@
 //! |---|---|---|---|
 //! | `lk` | window 21, 3 levels | LK parameters | see [`crate::lk`] |
 //! | `min_lk_fraction` | 0.5 | fraction of the 21 LK points LK must track to keep tracking | 0..=1 |
-//! | `lk_motion_threshold` | 1.0 px | motion-test shift above which LK runs, and median LK motion above which the shape is moved by LK | >= 0 |
+//! | `lk_motion_threshold` | 1.0 px | motion-test shift above which the shape is moved (by the translation or by LK), and median LK motion above which LK's similarity moves it | >= 0 |
+//! | `translate_max` | 3.0 px | motion-test shifts up to this (with a small residual) move the shape by the estimated translation, without LK | >= 0 |
 //! | `ert_init` | `MeanShapeInBox` | how ERT is started on tracked frames | - |
 //! | `agree_scale` | 0.1 | ERT/LK disagreement (÷ inter-ocular) that costs a factor e | > 0 |
 //! | `shape_tolerance` | 0.05 | rigid-point shape residual (÷ inter-ocular) that costs nothing | >= 0 |
@@ -138,6 +141,10 @@ pub struct TrackerParams {
     pub min_lk_fraction: f64,
     /// Median LK motion (px) above which the shape is carried by LK.
     pub lk_motion_threshold: f64,
+    /// Motion-test shifts up to this many pixels (above `lk_motion_threshold`, with
+    /// a small residual) move the previous shape by the estimated translation
+    /// instead of running LK; 0 = always LK above the threshold.
+    pub translate_max: f64,
     /// ERT start on tracked frames.
     pub ert_init: ErtInit,
     /// Disagreement scale (÷ inter-ocular).
@@ -164,6 +171,7 @@ impl Default for TrackerParams {
             lk: LkParams::default(),
             min_lk_fraction: 0.5,
             lk_motion_threshold: 1.0,
+            translate_max: 3.0,
             ert_init: ErtInit::MeanShapeInBox,
             agree_scale: 0.1,
             shape_tolerance: 0.05,
@@ -206,6 +214,12 @@ impl TrackerParams {
             "tracker.lk_motion_threshold",
             self.lk_motion_threshold,
             self.lk_motion_threshold >= 0.0,
+            ">= 0",
+        )?;
+        check(
+            "tracker.translate_max",
+            self.translate_max,
+            self.translate_max >= 0.0,
             ">= 0",
         )?;
         check("tracker.agree_scale", self.agree_scale, self.agree_scale > 0.0, "> 0")?;
@@ -546,9 +560,15 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
             let motion = global_motion(&ws.prev_gray, img, &state.prev.bounding_box());
             report.motion_estimate = motion.map_or(f64::INFINITY, |m| m.shift);
             report.motion_residual = motion.map_or(f64::INFINITY, |m| m.residual);
+            let small = |m: &Motion| m.residual <= MOTION_MAX_RESIDUAL;
             let use_lk = match motion {
-                Some(m) => m.shift > p.lk_motion_threshold || m.residual > MOTION_MAX_RESIDUAL,
+                Some(m) => !small(&m) || m.shift > p.lk_motion_threshold.max(p.translate_max),
                 None => true,
+            };
+            // a small shift above the threshold: move the shape by the translation
+            let translate = match motion {
+                Some(m) if !use_lk && m.shift > p.lk_motion_threshold => Some((m.dx, m.dy)),
+                _ => None,
             };
             let frac = if use_lk {
                 // 3b. LK carries the previous landmarks: pyramids of the previous frame
@@ -585,6 +605,10 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
                 }
                 if use_lk && report.lk_motion > p.lk_motion_threshold {
                     fit_similarity_apply(&prev[LK_POINTS], &ws.lk_next, &ws.lk_status, prev, &mut ws.init);
+                } else if let Some((dx, dy)) = translate {
+                    for (i, q) in ws.init.iter_mut().zip(prev) {
+                        *i = Point2::new(q.x + dx, q.y + dy);
+                    }
                 } else {
                     ws.init.copy_from_slice(prev);
                 }
@@ -757,6 +781,8 @@ fn global_motion(prev: &GrayImage, cur: &GrayImage, face: &Rect) -> Option<Motio
     let (bx, by) = (bx as f64, by as f64);
     let explained = (c * bx * bx - 2.0 * b * bx * by + a * by * by) / det;
     Some(Motion {
+        dx,
+        dy,
         shift: (dx * dx + dy * dy).sqrt(),
         residual: ((tt as f64 - explained).max(0.0) / n.max(1) as f64).sqrt(),
     })
@@ -765,6 +791,9 @@ fn global_motion(prev: &GrayImage, cur: &GrayImage, face: &Rect) -> Option<Motio
 /// Result of [`global_motion`].
 #[derive(Debug, Clone, Copy)]
 struct Motion {
+    /// Estimated translation (px).
+    dx: f64,
+    dy: f64,
     /// Estimated translation length (px).
     shift: f64,
     /// RMS unexplained grey-level difference.
