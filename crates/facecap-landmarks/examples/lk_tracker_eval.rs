@@ -82,12 +82,13 @@ struct DlibFrame {
 
 type Tracker = LandmarkTracker<FaceDetector, ShapePredictor>;
 
-fn run(tracker: &Tracker, frames: &[GrayImage]) -> (Vec<TrackedFrame>, f64, usize) {
+/// Tracked frames, seconds, detector runs and LK frames.
+fn run(tracker: &Tracker, frames: &[GrayImage]) -> (Vec<TrackedFrame>, f64, usize, usize) {
     let mut ws = tracker.new_workspace();
     let mut state = TrackerState::new();
     let mut out = TrackedFrame::default();
     let mut res = Vec::with_capacity(frames.len());
-    let mut dets = 0;
+    let (mut dets, mut lk) = (0, 0);
     let t0 = Instant::now();
     let mut secs = 0.0;
     for (k, f) in frames.iter().enumerate() {
@@ -97,10 +98,11 @@ fn run(tracker: &Tracker, frames: &[GrayImage]) -> (Vec<TrackedFrame>, f64, usiz
             .unwrap();
         secs += t.elapsed().as_secs_f64();
         dets += usize::from(rep.detector_ran);
+        lk += usize::from(rep.lk_ran);
         res.push(out.clone());
     }
     let _ = t0;
-    (res, secs, dets)
+    (res, secs, dets, lk)
 }
 
 fn main() {
@@ -125,8 +127,8 @@ fn main() {
     )
     .unwrap();
     println!("ert_init {ert_init:?}");
-    println!("| clip | frames | filter | face % | detector runs | mean dist to dlib (% IOD) | tracker frames/s (1 thread, decode excluded) |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| clip | frames | filter | face % | detector runs | LK frames | mean dist to dlib (% IOD) | tracker frames/s (1 thread, decode excluded) |");
+    println!("|---|---|---|---|---|---|---|---|");
     let mut still_src = None;
     for clip in &fx.clips {
         let path = facecap_core::paths::shared_data_file("lk_tracker_eval", &clip.clip).expect("shared data");
@@ -145,7 +147,7 @@ fn main() {
                 },
             )
             .unwrap();
-            let (res, secs, dets) = run(&tracker, &frames);
+            let (res, secs, dets, lk) = run(&tracker, &frames);
             let found = res.iter().filter(|r| r.success).count();
             let (mut sum, mut n) = (0.0, 0);
             for (r, t) in res.iter().zip(&clip.frames) {
@@ -156,7 +158,7 @@ fn main() {
                 }
             }
             println!(
-                "| {} | {} | {name} | {:.1} | {dets} | {:.2} | {:.0} |",
+                "| {} | {} | {name} | {:.1} | {dets} | {lk} | {:.2} | {:.0} |",
                 clip.clip,
                 frames.len(),
                 100.0 * found as f64 / frames.len() as f64,
@@ -206,7 +208,7 @@ fn main() {
             },
         )
         .unwrap();
-        let (res, _, _) = run(&tracker, &still);
+        let (res, _, _, _) = run(&tracker, &still);
         let ok: Vec<&TrackedFrame> = res.iter().skip(10).filter(|r| r.success).collect();
         let mut jitter = 0.0;
         for i in 0..NUM_LANDMARKS {
@@ -225,8 +227,8 @@ fn main() {
         jitter /= NUM_LANDMARKS as f64;
         let iod = ok[0].landmarks.interocular_distance();
         // Lag: reference = unfiltered landmarks on the unshifted frame, moved by the known shift.
-        let (mres, _, _) = run(&tracker, &moving);
-        let (r0, _, _) = run(
+        let (mres, _, _, _) = run(&tracker, &moving);
+        let (r0, _, _, _) = run(
             &LandmarkTracker::new(
                 det.clone(),
                 sp.clone(),

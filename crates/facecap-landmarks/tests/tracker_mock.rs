@@ -243,6 +243,10 @@ fn parameters_are_validated() {
             ..TrackerParams::default()
         },
         TrackerParams {
+            lk_residual_threshold: -1.0,
+            ..TrackerParams::default()
+        },
+        TrackerParams {
             agree_scale: 0.0,
             ..TrackerParams::default()
         },

@@ -16,9 +16,10 @@
 //!      change this translation leaves unexplained. About 0.4 M instructions per
 //!      frame, against ~5 M for the two pyramids + LK on 21 points.
 //!    - If `lk_motion_threshold < |d| <= translate_max` and the unexplained RMS is
-//!      at most 12 grey levels, the previous shape moves by `d` (a small shift; no
-//!      LK). If `|d| > translate_max` or the unexplained RMS exceeds 12 grey
-//!      levels (not a small shift: a cut, a flat frame, fast motion), LK carries
+//!      at most `lk_residual_threshold` grey levels, the previous shape moves by `d`
+//!      (a small shift; no LK). If `|d| > translate_max` or the unexplained RMS
+//!      exceeds `lk_residual_threshold` (not a small shift: a cut, a flat frame, a
+//!      fast motion), LK carries
 //!      the 21 rigid landmarks (nose 27-35, eyes 36-47) to this frame. If fewer than
 //!      `min_lk_fraction` of them are tracked the face is lost and we fall back to
 //!      step 2. When their median LK motion exceeds `lk_motion_threshold` px, the
@@ -56,6 +57,7 @@
 //! | `lk` | window 21, 3 levels | LK parameters | see [`crate::lk`] |
 //! | `min_lk_fraction` | 0.5 | fraction of the 21 LK points LK must track to keep tracking | 0..=1 |
 //! | `lk_motion_threshold` | 1.0 px | motion-test shift above which the shape is moved (by the translation or by LK), and median LK motion above which LK's similarity moves it | >= 0 |
+//! | `lk_residual_threshold` | 25 grey levels | unexplained RMS change above which LK runs whatever the shift | >= 0 |
 //! | `translate_max` | 3.0 px | motion-test shifts up to this (with a small residual) move the shape by the estimated translation, without LK | >= 0 |
 //! | `ert_init` | `MeanShapeInBox` | how ERT is started on tracked frames | - |
 //! | `agree_scale` | 0.1 | ERT/LK disagreement (÷ inter-ocular) that costs a factor e | > 0 |
@@ -145,6 +147,11 @@ pub struct TrackerParams {
     /// a small residual) move the previous shape by the estimated translation
     /// instead of running LK; 0 = always LK above the threshold.
     pub translate_max: f64,
+    /// RMS grey-level change the motion test's translation leaves unexplained above
+    /// which LK runs whatever the shift (a cut, a flat frame, a motion the
+    /// single linearised step cannot see). Talking faces change by 8-30 grey levels
+    /// between frames without moving (mouth, eyes, compression).
+    pub lk_residual_threshold: f64,
     /// ERT start on tracked frames.
     pub ert_init: ErtInit,
     /// Disagreement scale (÷ inter-ocular).
@@ -172,6 +179,7 @@ impl Default for TrackerParams {
             min_lk_fraction: 0.5,
             lk_motion_threshold: 1.0,
             translate_max: 3.0,
+            lk_residual_threshold: 25.0,
             ert_init: ErtInit::MeanShapeInBox,
             agree_scale: 0.1,
             shape_tolerance: 0.05,
@@ -214,6 +222,12 @@ impl TrackerParams {
             "tracker.lk_motion_threshold",
             self.lk_motion_threshold,
             self.lk_motion_threshold >= 0.0,
+            ">= 0",
+        )?;
+        check(
+            "tracker.lk_residual_threshold",
+            self.lk_residual_threshold,
+            self.lk_residual_threshold >= 0.0,
             ">= 0",
         )?;
         check(
@@ -560,7 +574,7 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
             let motion = global_motion(&ws.prev_gray, img, &state.prev.bounding_box());
             report.motion_estimate = motion.map_or(f64::INFINITY, |m| m.shift);
             report.motion_residual = motion.map_or(f64::INFINITY, |m| m.residual);
-            let small = |m: &Motion| m.residual <= MOTION_MAX_RESIDUAL;
+            let small = |m: &Motion| m.residual <= p.lk_residual_threshold;
             let use_lk = match motion {
                 Some(m) => !small(&m) || m.shift > p.lk_motion_threshold.max(p.translate_max),
                 None => true,
@@ -723,9 +737,6 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
 
 /// Grid step (px) of the cheap motion test.
 const MOTION_GRID_STEP: usize = 4;
-/// RMS grey-level mismatch left by the motion test's translation above which LK
-/// runs anyway (the change is not a small shift).
-const MOTION_MAX_RESIDUAL: f64 = 12.0;
 /// Margin around the previous landmarks' bounding box in the motion test (fraction of its size).
 const MOTION_BOX_MARGIN: f64 = 0.1;
 
