@@ -25,6 +25,7 @@
 use facecap_core::landmarks::Landmarks68;
 
 use crate::basis::Basis2d;
+use crate::bobyqa::{Bobyqa, BobyqaRun, BobyqaStop};
 use crate::error::{check_count, check_range, Error, Result};
 use crate::solver::{
     check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason, COORDS,
@@ -82,14 +83,14 @@ impl BobyqaParams {
 pub struct BobyqaSolver {
     model: Model2d,
     params: BobyqaParams,
-    configs: [bobyqa::Config; 2],
+    npt: usize,
 }
 
 /// Scratch of [`BobyqaSolver`]: the two BOBYQA engines (their buffers are allocated once here).
 #[derive(Debug, Clone)]
 pub struct BobyqaWorkspace {
     frame: Frame2d,
-    engines: [bobyqa::Bobyqa; 2],
+    engine: Bobyqa,
     dtb: Vec<f64>,
     x: Vec<f64>,
     lo: Vec<f64>,
@@ -132,20 +133,8 @@ impl BobyqaSolver {
         let model = Model2d::new(basis)?;
         let n = model.n;
         let npt = params.validate(n)?;
-        let mk = |rho_end: f64| {
-            let mut c = bobyqa::Config::new(n);
-            c.npt = npt;
-            c.rho_begin = params.rho_begin;
-            c.rho_end = rho_end;
-            c.max_fun = params.max_evals;
-            c
-        };
-        let configs = [mk(params.rho_end[0]), mk(params.rho_end[1])];
-        // construct once to surface configuration errors here rather than per workspace
-        for c in configs {
-            bobyqa::Bobyqa::new(n, c).map_err(|s| Error::invalid("bobyqa configuration", s, "a valid BOBYQA setup"))?;
-        }
-        Ok(BobyqaSolver { model, params, configs })
+        Bobyqa::new(n, npt)?;
+        Ok(BobyqaSolver { model, params, npt })
     }
 }
 
@@ -162,15 +151,14 @@ impl ExpressionSolver for BobyqaSolver {
 
     fn workspace(&self) -> BobyqaWorkspace {
         let n = self.model.n;
-        // `new` already built both configurations successfully; building again cannot fail
-        // except on allocation failure, where falling back to a minimal config is pointless.
-        let engines = self.configs.map(|c| match bobyqa::Bobyqa::new(n, c) {
+        // `new` already built an engine with the same (n, npt): this cannot fail
+        let engine = match Bobyqa::new(n, self.npt) {
             Ok(e) => e,
             Err(_) => unreachable_engine(n),
-        });
+        };
         BobyqaWorkspace {
             frame: Frame2d::new(),
-            engines,
+            engine,
             dtb: vec![0.0; n],
             x: vec![0.0; n],
             lo: vec![0.0; n],
@@ -205,16 +193,22 @@ impl ExpressionSolver for BobyqaSolver {
             m.dtb(&ws.frame.target, &mut ws.dtb);
             let bb: f64 = ws.frame.target.iter().map(|v| v * v).sum();
             let (gram, dtb, prev) = (&m.gram, &ws.dtb, &state.weights);
-            for engine in ws.engines.iter_mut() {
-                let o = engine.minimize(
+            for rho_end in self.params.rho_end {
+                let run = BobyqaRun {
+                    rho_begin: self.params.rho_begin,
+                    rho_end,
+                    max_evals: self.params.max_evals,
+                };
+                let o = ws.engine.minimize(
                     |e: &[f64]| gram_objective(gram, dtb, bb, s2, obj.l1, mu, prev, e),
                     &mut ws.x,
                     &ws.lo,
                     &ws.hi,
-                );
-                evals += o.n_eval;
+                    &run,
+                )?;
+                evals += o.evaluations;
                 f = o.f;
-                if o.status == bobyqa::Status::MaxFunReached {
+                if o.stop == BobyqaStop::MaxEvals {
                     stop = StopReason::MaxIterations;
                 }
             }
@@ -240,7 +234,7 @@ impl ExpressionSolver for BobyqaSolver {
 /// Allocation failure while building a workspace (after `new` succeeded with the same
 /// configuration) leaves nothing sensible to do.
 #[allow(clippy::panic)]
-fn unreachable_engine(n: usize) -> bobyqa::Bobyqa {
+fn unreachable_engine(n: usize) -> Bobyqa {
     panic!("BOBYQA workspace allocation failed for n = {n}")
 }
 
@@ -276,19 +270,18 @@ pub fn bobyqa_two_pass(
         }
     }
     let npt = params.validate(n)?;
+    let mut engine = Bobyqa::new(n, npt)?;
     let (mut evals, mut fval, mut stop) = (0, f64::NAN, StopReason::RhoEnd);
     for rho_end in params.rho_end {
-        let mut c = bobyqa::Config::new(n);
-        c.npt = npt;
-        c.rho_begin = params.rho_begin;
-        c.rho_end = rho_end;
-        c.max_fun = params.max_evals;
-        let mut engine =
-            bobyqa::Bobyqa::new(n, c).map_err(|s| Error::invalid("bobyqa configuration", s, "a valid BOBYQA setup"))?;
-        let o = engine.minimize(&mut f, x, lo, hi);
-        evals += o.n_eval;
+        let run = BobyqaRun {
+            rho_begin: params.rho_begin,
+            rho_end,
+            max_evals: params.max_evals,
+        };
+        let o = engine.minimize(&mut f, x, lo, hi, &run)?;
+        evals += o.evaluations;
         fval = o.f;
-        if o.status == bobyqa::Status::MaxFunReached {
+        if o.stop == BobyqaStop::MaxEvals {
             stop = StopReason::MaxIterations;
         }
     }

@@ -38,6 +38,7 @@
 //! ```
 
 pub mod basis;
+pub mod bobyqa;
 pub mod bobyqa_solver;
 pub mod error;
 pub mod exact;

@@ -1,0 +1,1792 @@
+//! Our BOBYQA: bound-constrained derivative-free minimisation by quadratic interpolation
+//! (Powell 2009, "The BOBYQA algorithm for bound constrained optimization without
+//! derivatives", Cambridge DAMTP report NA2009/06).
+//!
+//! # Method
+//! Minimises `f(x)` over the box `lo <= x <= hi` without derivatives. A quadratic model
+//! `Q(x) = c + g^T (x - x_opt) + 1/2 (x - x_opt)^T H (x - x_opt)` interpolates `f` at `npt`
+//! points (`n + 2 <= npt <= (n+1)(n+2)/2`; `2n + 1` recommended). The freedom left by the
+//! interpolation conditions is taken up by minimising the Frobenius norm of the *change* of
+//! `H` (the symmetric Broyden idea), so each new point changes the model by a multiple of one
+//! Lagrange function. `H` is held as an explicit part `HQ` plus an implicit part
+//! `sum_k PQ_k y_k y_k^T` over the interpolation points `y_k` (shifted by `XBASE`).
+//!
+//! The inverse of the KKT matrix of the interpolation problem, `W^-1 = [[Omega, Xi^T],
+//! [Xi, Upsilon]]`, is held in factored form: `Omega = Z Z^T` with `Z` (`ZMAT`, `npt x (npt-n-1)`)
+//! and the last `n` columns (`BMAT`, `(npt+n) x n`). Moving one interpolation point is a rank-2
+//! update of this inverse (UPDATE, eq. (4.9)-(4.14) of the paper): `O((npt + n) n + npt (npt-n-1))`
+//! work, a Givens rotation sweep of one row of `Z` and a rank-2 change of `BMAT`.
+//!
+//! Each iteration either
+//! * takes a trust-region step: TRSBOX, a truncated conjugate-gradient method in the
+//!   intersection of the ball `||d|| <= delta` and the box, with restarts when a bound becomes
+//!   active and 2D "alternative" iterations on the ball boundary (paper section 3); or
+//! * a geometry step ("alternative iteration") when an interpolation point is far from the
+//!   trust-region centre: ALTMOV picks a point on lines through `x_opt` and other
+//!   interpolation points, or a constrained Cauchy step of the Lagrange function, maximising
+//!   the UPDATE denominator (paper section 4).
+//!
+//! `rho` (the resolution) decreases from `rho_begin` to `rho_end`: `rho <- rho/10`, or
+//! `sqrt(rho rho_end)` / `rho_end` near the end, exactly as Powell's code.
+//!
+//! # Differences from Powell's Fortran
+//! * **RESCUE is not implemented.** Powell calls it when rounding errors have damaged the
+//!   UPDATE denominator (`denom <= 1/2 vlag_knew^2`, "not invoked in most applications"). Here
+//!   that condition ends the run with [`BobyqaStop::Cancellation`] and the best point so far
+//!   (what Powell's code does when RESCUE has just been called without progress).
+//! * The explicit Hessian `HQ` is stored as a full symmetric `n x n` row-major matrix instead
+//!   of packed, so Hessian-vector products are plain dense loops; `BMAT` is row-major
+//!   (`(npt+n) x n`), `XPT` is row-major (`npt x n`), `ZMAT` is column-major. All arrays are
+//!   allocated once in [`Bobyqa::new`] and reused for every [`Bobyqa::minimize`] call (no
+//!   allocation per solve).
+//! * A NaN or infinite objective value is an error ([`Error::Numerical`]), not a silent
+//!   continuation; `x` then holds the best point evaluated so far.
+//!
+//! # Parameters (of [`Bobyqa::minimize`])
+//! | param | meaning | range |
+//! |---|---|---|
+//! | `n` | number of variables | `>= 2` |
+//! | `npt` | interpolation points | `n + 2 ..= (n+1)(n+2)/2` |
+//! | `rho_begin` | initial trust radius (units of `x`) | `> 0`, `hi - lo >= 2 rho_begin` |
+//! | `rho_end` | final trust radius | `(0, rho_begin]` |
+//! | `max_evals` | evaluation cap | `> npt` |
+
+use crate::error::{Error, Result};
+
+/// Why [`Bobyqa::minimize`] stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BobyqaStop {
+    /// The trust region reached `rho_end` (normal termination).
+    RhoEnd,
+    /// `max_evals` evaluations were used.
+    MaxEvals,
+    /// Rounding errors damaged the denominator of the H update (Powell would call RESCUE).
+    Cancellation,
+    /// A trust-region step failed to reduce the model (rounding errors).
+    ModelStepFailed,
+}
+
+/// Result of [`Bobyqa::minimize`] (the minimiser itself is written into `x`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BobyqaOutcome {
+    /// Objective at the returned `x`.
+    pub f: f64,
+    /// Number of objective evaluations.
+    pub evaluations: usize,
+    /// Stop reason.
+    pub stop: BobyqaStop,
+}
+
+/// Settings of one [`Bobyqa::minimize`] run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BobyqaRun {
+    /// Initial trust-region radius.
+    pub rho_begin: f64,
+    /// Final trust-region radius.
+    pub rho_end: f64,
+    /// Evaluation cap.
+    pub max_evals: usize,
+}
+
+/// BOBYQA engine and workspace for a fixed `(n, npt)`: every array of the method, allocated
+/// once and reused across [`Bobyqa::minimize`] calls.
+#[derive(Debug, Clone)]
+pub struct Bobyqa {
+    n: usize,
+    npt: usize,
+    xbase: Vec<f64>,
+    /// `npt x n`, row-major.
+    xpt: Vec<f64>,
+    fval: Vec<f64>,
+    xopt: Vec<f64>,
+    gopt: Vec<f64>,
+    /// `n x n`, full symmetric, row-major.
+    hq: Vec<f64>,
+    pq: Vec<f64>,
+    /// `(npt + n) x n`, row-major.
+    bmat: Vec<f64>,
+    /// `npt x (npt - n - 1)`, column-major (column `jj` is `zmat[jj*npt..(jj+1)*npt]`).
+    zmat: Vec<f64>,
+    sl: Vec<f64>,
+    su: Vec<f64>,
+    xnew: Vec<f64>,
+    xalt: Vec<f64>,
+    d: Vec<f64>,
+    vlag: Vec<f64>,
+    xeval: Vec<f64>,
+    // scratch
+    gnew: Vec<f64>,
+    xbdi: Vec<f64>,
+    s: Vec<f64>,
+    hs: Vec<f64>,
+    hred: Vec<f64>,
+    glag: Vec<f64>,
+    hcol: Vec<f64>,
+    wa: Vec<f64>,
+    wb: Vec<f64>,
+    wn: Vec<f64>,
+    wn2: Vec<f64>,
+    /// `npt` scratch vectors.
+    wk1: Vec<f64>,
+    wk2: Vec<f64>,
+    wk3: Vec<f64>,
+    /// `npt + n` scratch (UPDATE).
+    wu: Vec<f64>,
+}
+
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut s0 = 0.0;
+    let mut s1 = 0.0;
+    let mut ca = a.chunks_exact(2);
+    let mut cb = b.chunks_exact(2);
+    for (x, y) in (&mut ca).zip(&mut cb) {
+        s0 += x[0] * y[0];
+        s1 += x[1] * y[1];
+    }
+    for (x, y) in ca.remainder().iter().zip(cb.remainder()) {
+        s0 += x * y;
+    }
+    s0 + s1
+}
+
+#[inline]
+fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += alpha * xi;
+    }
+}
+
+/// `hs = (HQ + sum_k pq_k y_k y_k^T) s`.
+fn hess_mul(n: usize, hq: &[f64], pq: &[f64], xpt: &[f64], s: &[f64], hs: &mut [f64]) {
+    for (i, h) in hs.iter_mut().enumerate() {
+        *h = dot(&hq[i * n..(i + 1) * n], s);
+    }
+    for (k, &p) in pq.iter().enumerate() {
+        if p != 0.0 {
+            let row = &xpt[k * n..(k + 1) * n];
+            let t = p * dot(row, s);
+            axpy(t, row, hs);
+        }
+    }
+}
+
+/// Objective evaluation with the NaN check.
+fn evaluate(f: &mut impl FnMut(&[f64]) -> f64, x: &[f64], nf: usize) -> Result<f64> {
+    let v = f(x);
+    if v.is_nan() || v == f64::INFINITY {
+        return Err(Error::Numerical {
+            operation: "bobyqa",
+            reason: format!("the objective returned {v} at evaluation {nf}"),
+        });
+    }
+    Ok(v)
+}
+
+const NONE: usize = usize::MAX;
+
+#[derive(Clone, Copy)]
+enum Lbl {
+    L20,
+    L60,
+    L90,
+    L210,
+    L230,
+    L360,
+    L650,
+    L680,
+    L720,
+}
+
+impl Bobyqa {
+    /// Allocates the engine for `n` variables and `npt` interpolation points.
+    ///
+    /// # Errors
+    /// `n < 2` or `npt` outside `n + 2 ..= (n+1)(n+2)/2`.
+    pub fn new(n: usize, npt: usize) -> Result<Self> {
+        if n < 2 {
+            return Err(Error::invalid("n", n, "at least 2 variables"));
+        }
+        if npt < n + 2 || npt > (n + 1) * (n + 2) / 2 {
+            return Err(Error::invalid(
+                "npt",
+                npt,
+                format!("an integer in [{}, {}]", n + 2, (n + 1) * (n + 2) / 2),
+            ));
+        }
+        let nptm = npt - n - 1;
+        let ndim = npt + n;
+        let z = |m: usize| vec![0.0; m];
+        Ok(Bobyqa {
+            n,
+            npt,
+            xbase: z(n),
+            xpt: z(npt * n),
+            fval: z(npt),
+            xopt: z(n),
+            gopt: z(n),
+            hq: z(n * n),
+            pq: z(npt),
+            bmat: z(ndim * n),
+            zmat: z(npt * nptm),
+            sl: z(n),
+            su: z(n),
+            xnew: z(n),
+            xalt: z(n),
+            d: z(n),
+            vlag: z(ndim),
+            xeval: z(n),
+            gnew: z(n),
+            xbdi: z(n),
+            s: z(n),
+            hs: z(n),
+            hred: z(n),
+            glag: z(n),
+            hcol: z(npt),
+            wa: z(n),
+            wb: z(n),
+            wn: z(n),
+            wn2: z(n),
+            wk1: z(npt),
+            wk2: z(npt),
+            wk3: z(npt),
+            wu: z(ndim),
+        })
+    }
+
+    /// Number of variables.
+    pub fn n(&self) -> usize {
+        self.n
+    }
+
+    /// Number of interpolation points.
+    pub fn npt(&self) -> usize {
+        self.npt
+    }
+
+    fn validate(&self, x: &[f64], lo: &[f64], hi: &[f64], run: &BobyqaRun) -> Result<()> {
+        let n = self.n;
+        for (what, len) in [("x", x.len()), ("lower bounds", lo.len()), ("upper bounds", hi.len())] {
+            if len != n {
+                return Err(Error::DimensionMismatch {
+                    what: what.into(),
+                    expected: n,
+                    got: len,
+                });
+            }
+        }
+        if !(run.rho_begin.is_finite() && run.rho_begin > 0.0) {
+            return Err(Error::invalid("rho_begin", run.rho_begin, "a finite number > 0"));
+        }
+        if !(run.rho_end.is_finite() && run.rho_end > 0.0 && run.rho_end <= run.rho_begin) {
+            return Err(Error::invalid(
+                "rho_end",
+                run.rho_end,
+                "a finite number in (0, rho_begin]",
+            ));
+        }
+        if run.max_evals <= self.npt {
+            return Err(Error::invalid(
+                "max_evals",
+                run.max_evals,
+                format!("more than npt = {}", self.npt),
+            ));
+        }
+        for i in 0..n {
+            if !x[i].is_finite() {
+                return Err(Error::invalid("x0", x[i], format!("finite (component {i})")));
+            }
+            if lo[i].is_nan() || hi[i].is_nan() || !(hi[i] - lo[i] >= 2.0 * run.rho_begin) {
+                return Err(Error::invalid(
+                    "bounds",
+                    format!("[{}, {}] for variable {i}", lo[i], hi[i]),
+                    "hi - lo >= 2 rho_begin",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Minimises `f` over `[lo, hi]` starting from `x` (overwritten with the best point).
+    ///
+    /// # Errors
+    /// Invalid sizes/parameters/bounds (see the module table), or a NaN objective value.
+    pub fn minimize(
+        &mut self,
+        mut f: impl FnMut(&[f64]) -> f64,
+        x: &mut [f64],
+        lo: &[f64],
+        hi: &[f64],
+        run: &BobyqaRun,
+    ) -> Result<BobyqaOutcome> {
+        self.validate(x, lo, hi, run)?;
+        let n = self.n;
+        let rhobeg = run.rho_begin;
+        // Driver: move x0 away from the bounds where needed, set SL/SU.
+        for j in 0..n {
+            let temp = hi[j] - lo[j];
+            self.sl[j] = lo[j] - x[j];
+            self.su[j] = hi[j] - x[j];
+            if self.sl[j] >= -rhobeg {
+                if self.sl[j] >= 0.0 {
+                    x[j] = lo[j];
+                    self.sl[j] = 0.0;
+                    self.su[j] = temp;
+                } else {
+                    x[j] = lo[j] + rhobeg;
+                    self.sl[j] = -rhobeg;
+                    self.su[j] = (hi[j] - x[j]).max(rhobeg);
+                }
+            } else if self.su[j] <= rhobeg {
+                if self.su[j] <= 0.0 {
+                    x[j] = hi[j];
+                    self.sl[j] = -temp;
+                    self.su[j] = 0.0;
+                } else {
+                    x[j] = hi[j] - rhobeg;
+                    self.sl[j] = (lo[j] - x[j]).min(-rhobeg);
+                    self.su[j] = rhobeg;
+                }
+            }
+        }
+        let mut nf = 0usize;
+        let r = self.bobyqb(&mut f, x, lo, hi, run, &mut nf);
+        if r.is_err() {
+            // best point so far (if any point was evaluated)
+            if nf > 1 {
+                let kopt = (0..self.npt.min(nf - 1))
+                    .min_by(|&a, &b| self.fval[a].total_cmp(&self.fval[b]))
+                    .unwrap_or(0);
+                for i in 0..n {
+                    x[i] = (self.xbase[i] + self.xpt[kopt * n + i]).clamp(lo[i], hi[i]);
+                }
+            }
+        }
+        r
+    }
+
+    fn prelim(
+        &mut self,
+        f: &mut impl FnMut(&[f64]) -> f64,
+        x: &[f64],
+        lo: &[f64],
+        hi: &[f64],
+        rhobeg: f64,
+        nf: &mut usize,
+    ) -> Result<usize> {
+        let (n, npt) = (self.n, self.npt);
+        let rhosq = rhobeg * rhobeg;
+        let recip = 1.0 / rhosq;
+        let np = n + 1;
+        self.xbase.copy_from_slice(x);
+        self.xpt.fill(0.0);
+        self.bmat.fill(0.0);
+        self.hq.fill(0.0);
+        self.pq.fill(0.0);
+        self.zmat.fill(0.0);
+        self.gopt.fill(0.0);
+        let mut kopt = 0usize;
+        let mut fbeg = 0.0;
+        let (mut stepa, mut stepb) = (0.0f64, 0.0f64);
+        let (mut ipt, mut jpt) = (0usize, 0usize);
+        // 1-based point counter as in Powell's code; row of point nf is nf - 1.
+        let mut cnt = 0usize;
+        loop {
+            let nfm = cnt;
+            cnt += 1;
+            let row = cnt - 1;
+            if nfm <= 2 * n {
+                if nfm >= 1 && nfm <= n {
+                    stepa = rhobeg;
+                    if self.su[nfm - 1] == 0.0 {
+                        stepa = -stepa;
+                    }
+                    self.xpt[row * n + nfm - 1] = stepa;
+                } else if nfm > n {
+                    let nfx = nfm - n;
+                    stepa = self.xpt[(cnt - n - 1) * n + nfx - 1];
+                    stepb = -rhobeg;
+                    if self.sl[nfx - 1] == 0.0 {
+                        stepb = (2.0 * rhobeg).min(self.su[nfx - 1]);
+                    }
+                    if self.su[nfx - 1] == 0.0 {
+                        stepb = (-2.0 * rhobeg).max(self.sl[nfx - 1]);
+                    }
+                    self.xpt[row * n + nfx - 1] = stepb;
+                }
+            } else {
+                let itemp = (nfm - np) / n;
+                jpt = nfm - itemp * n - n;
+                ipt = jpt + itemp;
+                if ipt > n {
+                    let t = jpt;
+                    jpt = ipt - n;
+                    ipt = t;
+                }
+                self.xpt[row * n + ipt - 1] = self.xpt[ipt * n + ipt - 1];
+                self.xpt[row * n + jpt - 1] = self.xpt[jpt * n + jpt - 1];
+            }
+            for j in 0..n {
+                let p = self.xpt[row * n + j];
+                let mut v = (self.xbase[j] + p).clamp(lo[j], hi[j]);
+                if p == self.sl[j] {
+                    v = lo[j];
+                }
+                if p == self.su[j] {
+                    v = hi[j];
+                }
+                self.xeval[j] = v;
+            }
+            *nf += 1;
+            let fv = evaluate(f, &self.xeval, *nf)?;
+            self.fval[row] = fv;
+            if cnt == 1 {
+                fbeg = fv;
+                kopt = 0;
+            } else if fv < self.fval[kopt] {
+                kopt = row;
+            }
+            if cnt <= 2 * n + 1 {
+                if cnt >= 2 && cnt <= n + 1 {
+                    let c = nfm - 1;
+                    self.gopt[c] = (fv - fbeg) / stepa;
+                    if npt < cnt + n {
+                        self.bmat[c] = -1.0 / stepa;
+                        self.bmat[(cnt - 1) * n + c] = 1.0 / stepa;
+                        self.bmat[(npt + c) * n + c] = -0.5 * rhosq;
+                    }
+                } else if cnt >= n + 2 {
+                    let c = nfm - n - 1; // 0-based variable index
+                    let other = cnt - n - 1; // 0-based row of the +stepa point
+                    let temp = (fv - fbeg) / stepb;
+                    let diff = stepb - stepa;
+                    self.hq[c * n + c] = 2.0 * (temp - self.gopt[c]) / diff;
+                    self.gopt[c] = (self.gopt[c] * stepb - temp * stepa) / diff;
+                    if stepa * stepb < 0.0 && fv < self.fval[other] {
+                        self.fval[row] = self.fval[other];
+                        self.fval[other] = fv;
+                        if kopt == row {
+                            kopt = other;
+                        }
+                        self.xpt[other * n + c] = stepb;
+                        self.xpt[row * n + c] = stepa;
+                    }
+                    let b0 = -(stepa + stepb) / (stepa * stepb);
+                    let bn = -0.5 / self.xpt[other * n + c];
+                    self.bmat[c] = b0;
+                    self.bmat[row * n + c] = bn;
+                    self.bmat[other * n + c] = -b0 - bn;
+                    let zc = &mut self.zmat[c * npt..(c + 1) * npt];
+                    zc[0] = std::f64::consts::SQRT_2 / (stepa * stepb);
+                    zc[row] = (0.5f64).sqrt() / rhosq;
+                    zc[other] = -zc[0] - zc[row];
+                }
+            } else {
+                let c = nfm - n - 1; // zmat column
+                let zc = &mut self.zmat[c * npt..(c + 1) * npt];
+                zc[0] = recip;
+                zc[row] = recip;
+                zc[ipt] = -recip;
+                zc[jpt] = -recip;
+                let temp = self.xpt[row * n + ipt - 1] * self.xpt[row * n + jpt - 1];
+                let h = (fbeg - self.fval[ipt] - self.fval[jpt] + fv) / temp;
+                self.hq[(ipt - 1) * n + jpt - 1] = h;
+                self.hq[(jpt - 1) * n + ipt - 1] = h;
+            }
+            if cnt >= npt {
+                break;
+            }
+        }
+        Ok(kopt)
+    }
+
+    #[allow(clippy::too_many_lines)]
+    fn bobyqb(
+        &mut self,
+        f: &mut impl FnMut(&[f64]) -> f64,
+        x: &mut [f64],
+        lo: &[f64],
+        hi: &[f64],
+        run: &BobyqaRun,
+        nf: &mut usize,
+    ) -> Result<BobyqaOutcome> {
+        let (n, npt) = (self.n, self.npt);
+        let maxfun = run.max_evals;
+        let rhoend = run.rho_end;
+        let mut kopt = self.prelim(f, x, lo, hi, run.rho_begin, nf)?;
+        let mut xoptsq = 0.0;
+        for i in 0..n {
+            self.xopt[i] = self.xpt[kopt * n + i];
+            xoptsq += self.xopt[i] * self.xopt[i];
+        }
+        let mut fsave = self.fval[0];
+        let kbase = 0usize;
+        let mut rho = run.rho_begin;
+        let mut delta = rho;
+        let mut ntrits: i32 = 0;
+        let (mut diffa, mut diffb, mut diffc) = (0.0f64, 0.0f64, 0.0f64);
+        let mut itest = 0;
+        let mut nfsav = *nf;
+        let mut stop = BobyqaStop::RhoEnd;
+        let mut dsq = 0.0;
+        let mut crvmin;
+        let mut dnorm = 0.0;
+        let mut distsq = 0.0;
+        let mut knew = NONE;
+        let mut adelt = 0.0;
+        let mut alpha = 0.0;
+        let mut cauchy = 0.0;
+        let mut beta = 0.0;
+        let mut denom = 0.0;
+        let mut ratio = 0.0;
+        let mut fval_last = f64::NAN;
+        let mut lbl = Lbl::L20;
+        loop {
+            match lbl {
+                Lbl::L20 => {
+                    if kopt != kbase {
+                        for i in 0..n {
+                            self.gopt[i] += dot(&self.hq[i * n..(i + 1) * n], &self.xopt);
+                        }
+                        if *nf > npt {
+                            for k in 0..npt {
+                                let row = &self.xpt[k * n..(k + 1) * n];
+                                let t = self.pq[k] * dot(row, &self.xopt);
+                                axpy(t, row, &mut self.gopt);
+                            }
+                        }
+                    }
+                    lbl = Lbl::L60;
+                }
+                Lbl::L60 => {
+                    let (dq, cm) = self.trsbox(delta);
+                    dsq = dq;
+                    crvmin = cm;
+                    dnorm = delta.min(dsq.sqrt());
+                    if dnorm < 0.5 * rho {
+                        ntrits = -1;
+                        distsq = (10.0 * rho) * (10.0 * rho);
+                        if *nf <= nfsav + 2 {
+                            lbl = Lbl::L650;
+                            continue;
+                        }
+                        let errbig = diffa.max(diffb).max(diffc);
+                        let frhosq = 0.125 * rho * rho;
+                        if crvmin > 0.0 && errbig > frhosq * crvmin {
+                            lbl = Lbl::L650;
+                            continue;
+                        }
+                        let bdtol = errbig / rho;
+                        let mut go650 = false;
+                        for j in 0..n {
+                            let mut bdtest = bdtol;
+                            if self.xnew[j] == self.sl[j] {
+                                bdtest = self.gnew[j];
+                            }
+                            if self.xnew[j] == self.su[j] {
+                                bdtest = -self.gnew[j];
+                            }
+                            if bdtest < bdtol {
+                                let mut curv = self.hq[j * n + j];
+                                for k in 0..npt {
+                                    let v = self.xpt[k * n + j];
+                                    curv += self.pq[k] * v * v;
+                                }
+                                bdtest += 0.5 * curv * rho;
+                                if bdtest < bdtol {
+                                    go650 = true;
+                                    break;
+                                }
+                            }
+                        }
+                        lbl = if go650 { Lbl::L650 } else { Lbl::L680 };
+                        continue;
+                    }
+                    ntrits += 1;
+                    lbl = Lbl::L90;
+                }
+                Lbl::L90 => {
+                    if dsq <= 1.0e-3 * xoptsq {
+                        self.shift_base(xoptsq);
+                        xoptsq = 0.0;
+                    }
+                    lbl = if ntrits == 0 { Lbl::L210 } else { Lbl::L230 };
+                }
+                Lbl::L210 => {
+                    let (a, c) = self.altmov(kopt, knew, adelt);
+                    alpha = a;
+                    cauchy = c;
+                    for i in 0..n {
+                        self.d[i] = self.xnew[i] - self.xopt[i];
+                    }
+                    lbl = Lbl::L230;
+                }
+                Lbl::L230 => {
+                    beta = self.vlag_beta(kopt, xoptsq);
+                    if ntrits == 0 {
+                        let vk = self.vlag[knew];
+                        denom = vk * vk + alpha * beta;
+                        if denom < cauchy && cauchy > 0.0 {
+                            for i in 0..n {
+                                self.xnew[i] = self.xalt[i];
+                                self.d[i] = self.xnew[i] - self.xopt[i];
+                            }
+                            cauchy = 0.0;
+                            continue; // L230 again
+                        }
+                        if denom <= 0.5 * vk * vk {
+                            stop = BobyqaStop::Cancellation;
+                            lbl = Lbl::L720;
+                            continue;
+                        }
+                    } else {
+                        let (k, den, ok) = self.choose_knew(kopt, beta, delta, false);
+                        if !ok || k == NONE {
+                            stop = BobyqaStop::Cancellation;
+                            lbl = Lbl::L720;
+                            continue;
+                        }
+                        knew = k;
+                        denom = den;
+                    }
+                    lbl = Lbl::L360;
+                }
+                Lbl::L360 => {
+                    for i in 0..n {
+                        let mut v = (self.xbase[i] + self.xnew[i]).clamp(lo[i], hi[i]);
+                        if self.xnew[i] == self.sl[i] {
+                            v = lo[i];
+                        }
+                        if self.xnew[i] == self.su[i] {
+                            v = hi[i];
+                        }
+                        self.xeval[i] = v;
+                    }
+                    if *nf >= maxfun {
+                        stop = BobyqaStop::MaxEvals;
+                        lbl = Lbl::L720;
+                        continue;
+                    }
+                    *nf += 1;
+                    let fv = evaluate(f, &self.xeval, *nf)?;
+                    fval_last = fv;
+                    if ntrits == -1 {
+                        fsave = fv;
+                        x.copy_from_slice(&self.xeval);
+                        lbl = Lbl::L720;
+                        continue;
+                    }
+                    let fopt = self.fval[kopt];
+                    // predicted change: d^T g + 1/2 d^T H d
+                    let mut vquad = dot(&self.d, &self.gopt);
+                    let mut dhd = 0.0;
+                    for i in 0..n {
+                        dhd += self.d[i] * dot(&self.hq[i * n..(i + 1) * n], &self.d);
+                    }
+                    vquad += 0.5 * dhd;
+                    for k in 0..npt {
+                        vquad += 0.5 * self.pq[k] * self.wk2[k] * self.wk2[k];
+                    }
+                    let diff = fv - fopt - vquad;
+                    diffc = diffb;
+                    diffb = diffa;
+                    diffa = diff.abs();
+                    if dnorm > rho {
+                        nfsav = *nf;
+                    }
+                    if ntrits > 0 {
+                        if vquad >= 0.0 {
+                            stop = BobyqaStop::ModelStepFailed;
+                            lbl = Lbl::L720;
+                            continue;
+                        }
+                        ratio = (fv - fopt) / vquad;
+                        if ratio <= 0.1 {
+                            delta = (0.5 * delta).min(dnorm);
+                        } else if ratio <= 0.7 {
+                            delta = (0.5 * delta).max(dnorm);
+                        } else {
+                            delta = (0.5 * delta).max(dnorm + dnorm);
+                        }
+                        if delta <= 1.5 * rho {
+                            delta = rho;
+                        }
+                        if fv < fopt {
+                            let (k, den, ok) = self.choose_knew(kopt, beta, delta, true);
+                            if ok && k != NONE {
+                                knew = k;
+                                denom = den;
+                            }
+                        }
+                    }
+                    self.update(beta, denom, knew);
+                    self.model_update(knew, diff, fv);
+                    if fv < fopt {
+                        kopt = knew;
+                        xoptsq = 0.0;
+                        for j in 0..n {
+                            self.xopt[j] = self.xnew[j];
+                            xoptsq += self.xopt[j] * self.xopt[j];
+                        }
+                        // gopt += H d
+                        hess_mul(n, &self.hq, &self.pq, &self.xpt, &self.d, &mut self.hs);
+                        for i in 0..n {
+                            self.gopt[i] += self.hs[i];
+                        }
+                    }
+                    if ntrits > 0 {
+                        itest = self.frobenius_test(kopt, itest);
+                    }
+                    if ntrits == 0 || fv <= fopt + 0.1 * vquad {
+                        lbl = Lbl::L60;
+                        continue;
+                    }
+                    distsq = (4.0 * delta * delta).max(100.0 * rho * rho);
+                    lbl = Lbl::L650;
+                }
+                Lbl::L650 => {
+                    knew = NONE;
+                    for k in 0..npt {
+                        let mut sum = 0.0;
+                        for j in 0..n {
+                            let t = self.xpt[k * n + j] - self.xopt[j];
+                            sum += t * t;
+                        }
+                        if sum > distsq {
+                            knew = k;
+                            distsq = sum;
+                        }
+                    }
+                    if knew != NONE {
+                        let dist = distsq.sqrt();
+                        if ntrits == -1 {
+                            delta = (0.1 * delta).min(0.5 * dist);
+                            if delta <= 1.5 * rho {
+                                delta = rho;
+                            }
+                        }
+                        ntrits = 0;
+                        adelt = (0.1 * dist).min(delta).max(rho);
+                        dsq = adelt * adelt;
+                        lbl = Lbl::L90;
+                        continue;
+                    }
+                    if ntrits == -1 {
+                        lbl = Lbl::L680;
+                    } else if ratio > 0.0 || delta.max(dnorm) > rho {
+                        lbl = Lbl::L60;
+                    } else {
+                        lbl = Lbl::L680;
+                    }
+                }
+                Lbl::L680 => {
+                    if rho > rhoend {
+                        delta = 0.5 * rho;
+                        ratio = rho / rhoend;
+                        if ratio <= 16.0 {
+                            rho = rhoend;
+                        } else if ratio <= 250.0 {
+                            rho = ratio.sqrt() * rhoend;
+                        } else {
+                            rho *= 0.1;
+                        }
+                        delta = delta.max(rho);
+                        ntrits = 0;
+                        nfsav = *nf;
+                        lbl = Lbl::L60;
+                        continue;
+                    }
+                    lbl = if ntrits == -1 { Lbl::L360 } else { Lbl::L720 };
+                }
+                Lbl::L720 => {
+                    let mut fret = fval_last;
+                    if self.fval[kopt] <= fsave {
+                        for i in 0..n {
+                            let mut v = (self.xbase[i] + self.xopt[i]).clamp(lo[i], hi[i]);
+                            if self.xopt[i] == self.sl[i] {
+                                v = lo[i];
+                            }
+                            if self.xopt[i] == self.su[i] {
+                                v = hi[i];
+                            }
+                            x[i] = v;
+                        }
+                        fret = self.fval[kopt];
+                    }
+                    return Ok(BobyqaOutcome {
+                        f: fret,
+                        evaluations: *nf,
+                        stop,
+                    });
+                }
+            }
+        }
+    }
+
+    /// Shift of `XBASE` to `XOPT` (label 90 of BOBYQB): BMAT and the model's second
+    /// derivatives are revised so that the model and the H matrix are unchanged.
+    fn shift_base(&mut self, xoptsq: f64) {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        let fracsq = 0.25 * xoptsq;
+        let mut sumpq = 0.0;
+        // wk1[k] = y_k . xopt - |xopt|^2/2
+        for k in 0..npt {
+            sumpq += self.pq[k];
+            let row = &self.xpt[k * n..(k + 1) * n];
+            let sum = dot(row, &self.xopt) - 0.5 * xoptsq;
+            self.wk1[k] = sum;
+            let temp = fracsq - 0.5 * sum;
+            for i in 0..n {
+                self.wn[i] = self.bmat[k * n + i];
+                self.wn2[i] = sum * row[i] + temp * self.xopt[i];
+            }
+            for i in 0..n {
+                let b = &mut self.bmat[(npt + i) * n..(npt + i + 1) * n];
+                let (wi, vi) = (self.wn[i], self.wn2[i]);
+                for j in 0..=i {
+                    b[j] += wi * self.wn2[j] + vi * self.wn[j];
+                }
+            }
+        }
+        for jj in 0..nptm {
+            let zc = &self.zmat[jj * npt..(jj + 1) * npt];
+            let mut sumz = 0.0;
+            let mut sumw = 0.0;
+            for k in 0..npt {
+                sumz += zc[k];
+                self.wk3[k] = self.wk1[k] * zc[k];
+                sumw += self.wk3[k];
+            }
+            let c = fracsq * sumz - 0.5 * sumw;
+            for j in 0..n {
+                self.wn[j] = c * self.xopt[j];
+            }
+            for k in 0..npt {
+                axpy(self.wk3[k], &self.xpt[k * n..(k + 1) * n], &mut self.wn);
+            }
+            for k in 0..npt {
+                axpy(zc[k], &self.wn, &mut self.bmat[k * n..(k + 1) * n]);
+            }
+            for i in 0..n {
+                let b = &mut self.bmat[(npt + i) * n..(npt + i + 1) * n];
+                let wi = self.wn[i];
+                for j in 0..=i {
+                    b[j] += wi * self.wn[j];
+                }
+            }
+        }
+        // complete the shift: HQ, the symmetric block of BMAT, XPT
+        for j in 0..n {
+            self.wn[j] = -0.5 * sumpq * self.xopt[j];
+        }
+        for k in 0..npt {
+            axpy(self.pq[k], &self.xpt[k * n..(k + 1) * n], &mut self.wn);
+            for j in 0..n {
+                self.xpt[k * n + j] -= self.xopt[j];
+            }
+        }
+        for i in 0..n {
+            for j in 0..n {
+                self.hq[i * n + j] += self.wn[i] * self.xopt[j] + self.xopt[i] * self.wn[j];
+            }
+        }
+        for i in 0..n {
+            for j in (i + 1)..n {
+                self.bmat[(npt + i) * n + j] = self.bmat[(npt + j) * n + i];
+            }
+        }
+        for i in 0..n {
+            self.xbase[i] += self.xopt[i];
+            self.xnew[i] -= self.xopt[i];
+            self.sl[i] -= self.xopt[i];
+            self.su[i] -= self.xopt[i];
+            self.xopt[i] = 0.0;
+        }
+    }
+
+    /// VLAG (values of the Lagrange functions at `xopt + d`, and the last `n` components of
+    /// `H w`) and BETA (label 230). Leaves `y_k . d` in `wk2` and
+    /// `(y_k . d)(y_k . d / 2 + y_k . xopt)` in `wk1`.
+    fn vlag_beta(&mut self, kopt: usize, xoptsq: f64) -> f64 {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        for k in 0..npt {
+            let row = &self.xpt[k * n..(k + 1) * n];
+            let suma = dot(row, &self.d);
+            let sumb = dot(row, &self.xopt);
+            self.wk1[k] = suma * (0.5 * suma + sumb);
+            self.vlag[k] = dot(&self.bmat[k * n..(k + 1) * n], &self.d);
+            self.wk2[k] = suma;
+        }
+        let mut beta = 0.0;
+        for jj in 0..nptm {
+            let zc = &self.zmat[jj * npt..(jj + 1) * npt];
+            let sum = dot(zc, &self.wk1);
+            beta -= sum * sum;
+            axpy(sum, zc, &mut self.vlag[..npt]);
+        }
+        // wn = BMAT[:npt]^T wk1
+        self.wn.fill(0.0);
+        for k in 0..npt {
+            axpy(self.wk1[k], &self.bmat[k * n..(k + 1) * n], &mut self.wn);
+        }
+        let mut dsq = 0.0;
+        let mut bsum = 0.0;
+        let mut dx = 0.0;
+        for j in 0..n {
+            let dj = self.d[j];
+            dsq += dj * dj;
+            let mut sum = self.wn[j];
+            bsum += sum * dj;
+            sum += dot(&self.bmat[(npt + j) * n..(npt + j + 1) * n], &self.d);
+            self.vlag[npt + j] = sum;
+            bsum += sum * dj;
+            dx += dj * self.xopt[j];
+        }
+        beta = dx * dx + dsq * (xoptsq + dx + dx + 0.5 * dsq) + beta - bsum;
+        self.vlag[kopt] += 1.0;
+        beta
+    }
+
+    /// Index of the interpolation point to replace by a trust-region step: the largest
+    /// `max(1, (dist/delta)^4) * (beta H_kk + vlag_k^2)`. Distances from `xopt` (skipping
+    /// `kopt`) or, with `from_new`, from `xnew` (all points). Returns (knew, denom, ok) where
+    /// `ok` is false when the denominator suffers from cancellation.
+    fn choose_knew(&mut self, kopt: usize, beta: f64, delta: f64, from_new: bool) -> (usize, f64, bool) {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        // hdiag in wk3
+        self.wk3.fill(0.0);
+        for jj in 0..nptm {
+            let zc = &self.zmat[jj * npt..(jj + 1) * npt];
+            for k in 0..npt {
+                self.wk3[k] += zc[k] * zc[k];
+            }
+        }
+        let delsq = delta * delta;
+        let mut scaden = 0.0;
+        let mut biglsq: f64 = 0.0;
+        let mut knew = NONE;
+        let mut denom = 0.0;
+        let centre = if from_new { &self.xnew } else { &self.xopt };
+        for k in 0..npt {
+            if !from_new && k == kopt {
+                continue;
+            }
+            let den = beta * self.wk3[k] + self.vlag[k] * self.vlag[k];
+            let mut distsq = 0.0;
+            for j in 0..n {
+                let t = self.xpt[k * n + j] - centre[j];
+                distsq += t * t;
+            }
+            let q = distsq / delsq;
+            let temp = (q * q).max(1.0);
+            if temp * den > scaden {
+                scaden = temp * den;
+                knew = k;
+                denom = den;
+            }
+            biglsq = biglsq.max(temp * self.vlag[k] * self.vlag[k]);
+        }
+        (knew, denom, scaden > 0.5 * biglsq)
+    }
+
+    /// Model update after the new point replaced point `knew` (after UPDATE): second
+    /// derivatives (PQ, HQ), the point itself, and the gradient at the old `xopt`.
+    fn model_update(&mut self, knew: usize, diff: f64, fv: f64) {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        let pqold = self.pq[knew];
+        self.pq[knew] = 0.0;
+        if pqold != 0.0 {
+            for i in 0..n {
+                let t = pqold * self.xpt[knew * n + i];
+                for j in 0..n {
+                    self.hq[i * n + j] += t * self.xpt[knew * n + j];
+                }
+            }
+        }
+        // hcol = Z Z^T e_knew  (the knew-th column of Omega)
+        self.wk3.fill(0.0);
+        for jj in 0..nptm {
+            let zc = &self.zmat[jj * npt..(jj + 1) * npt];
+            let zk = zc[knew];
+            if zk != 0.0 {
+                axpy(zk, zc, &mut self.wk3);
+            }
+        }
+        for k in 0..npt {
+            self.pq[k] += diff * self.wk3[k];
+        }
+        self.fval[knew] = fv;
+        self.xpt[knew * n..(knew + 1) * n].copy_from_slice(&self.xnew);
+        self.wn.copy_from_slice(&self.bmat[knew * n..(knew + 1) * n]);
+        for k in 0..npt {
+            let row = &self.xpt[k * n..(k + 1) * n];
+            let t = self.wk3[k] * dot(row, &self.xopt);
+            axpy(t, row, &mut self.wn);
+        }
+        axpy(diff, &self.wn, &mut self.gopt);
+    }
+
+    /// Replaces the model by the least-Frobenius-norm interpolant when its gradient has been
+    /// much smaller than the current one for three iterations in a row. Returns new itest.
+    fn frobenius_test(&mut self, kopt: usize, mut itest: usize) -> usize {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        let fk = self.fval[kopt];
+        for k in 0..npt {
+            self.vlag[k] = self.fval[k] - fk;
+        }
+        self.wk1.fill(0.0);
+        for jj in 0..nptm {
+            let zc = &self.zmat[jj * npt..(jj + 1) * npt];
+            let sum = dot(zc, &self.vlag[..npt]);
+            axpy(sum, zc, &mut self.wk1);
+        }
+        for k in 0..npt {
+            let sum = dot(&self.xpt[k * n..(k + 1) * n], &self.xopt);
+            self.wk3[k] = self.wk1[k];
+            self.wk1[k] *= sum;
+        }
+        // g_i = sum_k bmat[k,i] vlag_k + xpt[k,i] wk1_k
+        self.wn.fill(0.0);
+        for k in 0..npt {
+            axpy(self.vlag[k], &self.bmat[k * n..(k + 1) * n], &mut self.wn);
+            axpy(self.wk1[k], &self.xpt[k * n..(k + 1) * n], &mut self.wn);
+        }
+        let mut gqsq = 0.0;
+        let mut gisq = 0.0;
+        for i in 0..n {
+            let sum = self.wn[i];
+            let g = self.gopt[i];
+            if self.xopt[i] == self.sl[i] {
+                gqsq += g.min(0.0).powi(2);
+                gisq += sum.min(0.0).powi(2);
+            } else if self.xopt[i] == self.su[i] {
+                gqsq += g.max(0.0).powi(2);
+                gisq += sum.max(0.0).powi(2);
+            } else {
+                gqsq += g * g;
+                gisq += sum * sum;
+            }
+            self.vlag[npt + i] = sum;
+        }
+        itest += 1;
+        if gqsq < 10.0 * gisq {
+            itest = 0;
+        }
+        if itest >= 3 {
+            self.gopt.copy_from_slice(&self.wn);
+            self.pq.copy_from_slice(&self.wk3);
+            self.hq.fill(0.0);
+            itest = 0;
+        }
+        itest
+    }
+
+    /// UPDATE: revises BMAT and ZMAT when point `knew` moves (rank-2 change of H).
+    fn update(&mut self, beta: f64, denom: f64, knew: usize) {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        let zmax = self.zmat.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let ztest = 1.0e-20 * zmax;
+        // Givens rotations zeroing row knew of Z except its first column.
+        for j in 1..nptm {
+            let zkj = self.zmat[j * npt + knew];
+            if zkj.abs() > ztest {
+                let zk1 = self.zmat[knew];
+                let temp = zk1.hypot(zkj);
+                let ta = zk1 / temp;
+                let tb = zkj / temp;
+                let (c0, cj) = self.zmat.split_at_mut(j * npt);
+                let c0 = &mut c0[..npt];
+                let cj = &mut cj[..npt];
+                for i in 0..npt {
+                    let t = ta * c0[i] + tb * cj[i];
+                    cj[i] = ta * cj[i] - tb * c0[i];
+                    c0[i] = t;
+                }
+            }
+            self.zmat[j * npt + knew] = 0.0;
+        }
+        let zk1 = self.zmat[knew];
+        for i in 0..npt {
+            self.wu[i] = zk1 * self.zmat[i];
+        }
+        let alpha = self.wu[knew];
+        let tau = self.vlag[knew];
+        self.vlag[knew] -= 1.0;
+        let sq = denom.sqrt();
+        let tb = zk1 / sq;
+        let ta = tau / sq;
+        for i in 0..npt {
+            self.zmat[i] = ta * self.zmat[i] - tb * self.vlag[i];
+        }
+        // BMAT
+        for j in 0..n {
+            let wj = self.bmat[knew * n + j];
+            self.wu[npt + j] = wj;
+            let vj = self.vlag[npt + j];
+            self.wa[j] = (alpha * vj - tau * wj) / denom;
+            self.wb[j] = (-beta * wj - tau * vj) / denom;
+        }
+        for i in 0..npt {
+            let (vi, wi) = (self.vlag[i], self.wu[i]);
+            let row = &mut self.bmat[i * n..(i + 1) * n];
+            for j in 0..n {
+                row[j] += vi * self.wa[j] + wi * self.wb[j];
+            }
+        }
+        for a in 0..n {
+            let (va, wa_) = (self.vlag[npt + a], self.wu[npt + a]);
+            for j in a..n {
+                let v = self.bmat[(npt + a) * n + j] + self.wa[j] * va + self.wb[j] * wa_;
+                self.bmat[(npt + a) * n + j] = v;
+                self.bmat[(npt + j) * n + a] = v;
+            }
+        }
+    }
+
+    /// ALTMOV: alternative new positions for point `knew` (returns alpha, cauchy; sets
+    /// `xnew`, `xalt`).
+    #[allow(clippy::too_many_lines)]
+    fn altmov(&mut self, kopt: usize, knew: usize, adelt: f64) -> (f64, f64) {
+        let (n, npt) = (self.n, self.npt);
+        let nptm = npt - n - 1;
+        let cnst = 1.0 + std::f64::consts::SQRT_2;
+        self.hcol.fill(0.0);
+        for j in 0..nptm {
+            let zc = &self.zmat[j * npt..(j + 1) * npt];
+            axpy(zc[knew], zc, &mut self.hcol);
+        }
+        let alpha = self.hcol[knew];
+        let ha = 0.5 * alpha;
+        self.glag.copy_from_slice(&self.bmat[knew * n..(knew + 1) * n]);
+        for k in 0..npt {
+            let row = &self.xpt[k * n..(k + 1) * n];
+            let t = self.hcol[k] * dot(row, &self.xopt);
+            axpy(t, row, &mut self.glag);
+        }
+        let mut presav = 0.0;
+        let mut ksav = knew;
+        let mut stpsav = 0.0;
+        let mut ibdsav: isize = 0;
+        for k in 0..npt {
+            if k == kopt {
+                continue;
+            }
+            let row = &self.xpt[k * n..(k + 1) * n];
+            let mut dderiv = 0.0;
+            let mut distsq = 0.0;
+            for i in 0..n {
+                let t = row[i] - self.xopt[i];
+                dderiv += self.glag[i] * t;
+                distsq += t * t;
+            }
+            let mut subd = adelt / distsq.sqrt();
+            let mut slbd = -subd;
+            let mut ilbd: isize = 0;
+            let mut iubd: isize = 0;
+            let sumin = subd.min(1.0);
+            for i in 0..n {
+                let t = row[i] - self.xopt[i];
+                let ii = i as isize + 1;
+                let lo = self.sl[i] - self.xopt[i];
+                let hi = self.su[i] - self.xopt[i];
+                if t > 0.0 {
+                    if slbd * t < lo {
+                        slbd = lo / t;
+                        ilbd = -ii;
+                    }
+                    if subd * t > hi {
+                        subd = sumin.max(hi / t);
+                        iubd = ii;
+                    }
+                } else if t < 0.0 {
+                    if slbd * t > hi {
+                        slbd = hi / t;
+                        ilbd = ii;
+                    }
+                    if subd * t < lo {
+                        subd = sumin.max(lo / t);
+                        iubd = -ii;
+                    }
+                }
+            }
+            let (step, vlag, isbd);
+            if k == knew {
+                let diff = dderiv - 1.0;
+                let mut st = slbd;
+                let mut vl = slbd * (dderiv - slbd * diff);
+                let mut ib = ilbd;
+                let temp = subd * (dderiv - subd * diff);
+                if temp.abs() > vl.abs() {
+                    st = subd;
+                    vl = temp;
+                    ib = iubd;
+                }
+                let tempd = 0.5 * dderiv;
+                let tempa = tempd - diff * slbd;
+                let tempb = tempd - diff * subd;
+                if tempa * tempb < 0.0 {
+                    let temp = tempd * tempd / diff;
+                    if temp.abs() > vl.abs() {
+                        st = tempd / diff;
+                        vl = temp;
+                        ib = 0;
+                    }
+                }
+                step = st;
+                vlag = vl;
+                isbd = ib;
+            } else {
+                let mut st = slbd;
+                let mut vl = slbd * (1.0 - slbd);
+                let mut ib = ilbd;
+                let temp = subd * (1.0 - subd);
+                if temp.abs() > vl.abs() {
+                    st = subd;
+                    vl = temp;
+                    ib = iubd;
+                }
+                if subd > 0.5 && vl.abs() < 0.25 {
+                    st = 0.5;
+                    vl = 0.25;
+                    ib = 0;
+                }
+                step = st;
+                vlag = vl * dderiv;
+                isbd = ib;
+            }
+            let temp = step * (1.0 - step) * distsq;
+            let predsq = vlag * vlag * (vlag * vlag + ha * temp * temp);
+            if predsq > presav {
+                presav = predsq;
+                ksav = k;
+                stpsav = step;
+                ibdsav = isbd;
+            }
+        }
+        for i in 0..n {
+            let t = self.xopt[i] + stpsav * (self.xpt[ksav * n + i] - self.xopt[i]);
+            self.xnew[i] = t.min(self.su[i]).max(self.sl[i]);
+        }
+        if ibdsav < 0 {
+            let i = (-ibdsav - 1) as usize;
+            self.xnew[i] = self.sl[i];
+        } else if ibdsav > 0 {
+            let i = (ibdsav - 1) as usize;
+            self.xnew[i] = self.su[i];
+        }
+        // constrained Cauchy step of the Lagrange function, both signs
+        let bigstp = adelt + adelt;
+        let mut iflag = 0;
+        let mut csave = 0.0;
+        let mut cauchy;
+        loop {
+            let mut wfixsq = 0.0;
+            let mut ggfree = 0.0;
+            for i in 0..n {
+                self.wa[i] = 0.0;
+                let tempa = (self.xopt[i] - self.sl[i]).min(self.glag[i]);
+                let tempb = (self.xopt[i] - self.su[i]).max(self.glag[i]);
+                if tempa > 0.0 || tempb < 0.0 {
+                    self.wa[i] = bigstp;
+                    ggfree += self.glag[i] * self.glag[i];
+                }
+            }
+            if ggfree == 0.0 {
+                return (alpha, 0.0);
+            }
+            let mut step = 0.0;
+            loop {
+                let temp = adelt * adelt - wfixsq;
+                if temp > 0.0 {
+                    let wsqsav = wfixsq;
+                    step = (temp / ggfree).sqrt();
+                    ggfree = 0.0;
+                    for i in 0..n {
+                        if self.wa[i] == bigstp {
+                            let t = self.xopt[i] - step * self.glag[i];
+                            if t <= self.sl[i] {
+                                self.wa[i] = self.sl[i] - self.xopt[i];
+                                wfixsq += self.wa[i] * self.wa[i];
+                            } else if t >= self.su[i] {
+                                self.wa[i] = self.su[i] - self.xopt[i];
+                                wfixsq += self.wa[i] * self.wa[i];
+                            } else {
+                                ggfree += self.glag[i] * self.glag[i];
+                            }
+                        }
+                    }
+                    if wfixsq > wsqsav && ggfree > 0.0 {
+                        continue;
+                    }
+                }
+                break;
+            }
+            let mut gw = 0.0;
+            for i in 0..n {
+                if self.wa[i] == bigstp {
+                    self.wa[i] = -step * self.glag[i];
+                    self.xalt[i] = (self.xopt[i] + self.wa[i]).min(self.su[i]).max(self.sl[i]);
+                } else if self.wa[i] == 0.0 {
+                    self.xalt[i] = self.xopt[i];
+                } else if self.glag[i] > 0.0 {
+                    self.xalt[i] = self.sl[i];
+                } else {
+                    self.xalt[i] = self.su[i];
+                }
+                gw += self.glag[i] * self.wa[i];
+            }
+            let mut curv = 0.0;
+            for k in 0..npt {
+                let t = dot(&self.xpt[k * n..(k + 1) * n], &self.wa);
+                curv += self.hcol[k] * t * t;
+            }
+            if iflag == 1 {
+                curv = -curv;
+            }
+            if curv > -gw && curv < -cnst * gw {
+                let scale = -gw / curv;
+                for i in 0..n {
+                    let t = self.xopt[i] + scale * self.wa[i];
+                    self.xalt[i] = t.min(self.su[i]).max(self.sl[i]);
+                }
+                cauchy = (0.5 * gw * scale) * (0.5 * gw * scale);
+            } else {
+                cauchy = (gw + 0.5 * curv) * (gw + 0.5 * curv);
+            }
+            if iflag == 0 {
+                for i in 0..n {
+                    self.glag[i] = -self.glag[i];
+                    self.wb[i] = self.xalt[i];
+                }
+                csave = cauchy;
+                iflag = 1;
+                continue;
+            }
+            if csave > cauchy {
+                self.xalt.copy_from_slice(&self.wb);
+                cauchy = csave;
+            }
+            return (alpha, cauchy);
+        }
+    }
+
+    /// TRSBOX: approximate minimiser of the model in the trust region and the box; sets
+    /// `xnew`, `d` (= xnew - xopt), `gnew`; returns `(|d|^2, crvmin)`.
+    #[allow(clippy::too_many_lines)]
+    fn trsbox(&mut self, delta: f64) -> (f64, f64) {
+        #[derive(Clone, Copy)]
+        enum T {
+            L20,
+            L30,
+            L50,
+            L90,
+            L100,
+            L120,
+            L150,
+            L190,
+            L210,
+        }
+        let (n, npt) = (self.n, self.npt);
+        let Bobyqa {
+            xpt,
+            xopt,
+            gopt,
+            hq,
+            pq,
+            sl,
+            su,
+            xnew,
+            d,
+            gnew,
+            xbdi,
+            s,
+            hs,
+            hred,
+            ..
+        } = self;
+        let _ = npt;
+        let mut iterc = 0usize;
+        let mut nact = 0usize;
+        for i in 0..n {
+            xbdi[i] = 0.0;
+            if xopt[i] <= sl[i] {
+                if gopt[i] >= 0.0 {
+                    xbdi[i] = -1.0;
+                }
+            } else if xopt[i] >= su[i] && gopt[i] <= 0.0 {
+                xbdi[i] = 1.0;
+            }
+            if xbdi[i] != 0.0 {
+                nact += 1;
+            }
+            d[i] = 0.0;
+            gnew[i] = gopt[i];
+        }
+        let mut delsq = delta * delta;
+        let mut qred = 0.0;
+        let mut crvmin = -1.0;
+        let mut beta = 0.0;
+        let mut stepsq = 0.0;
+        let mut gredsq = 0.0;
+        let mut itermax = 0usize;
+        let mut ggsav = 0.0;
+        let mut itcsav = 0usize;
+        let mut dredsq = 0.0;
+        let mut dredg = 0.0;
+        let mut sredg = 0.0;
+        let mut angbd = 1.0;
+        let mut iact = NONE;
+        let mut xsav = 0.0;
+        let mut st = T::L20;
+        loop {
+            match st {
+                T::L20 => {
+                    beta = 0.0;
+                    st = T::L30;
+                }
+                T::L30 => {
+                    stepsq = 0.0;
+                    for i in 0..n {
+                        if xbdi[i] != 0.0 {
+                            s[i] = 0.0;
+                        } else if beta == 0.0 {
+                            s[i] = -gnew[i];
+                        } else {
+                            s[i] = beta * s[i] - gnew[i];
+                        }
+                        stepsq += s[i] * s[i];
+                    }
+                    if stepsq == 0.0 {
+                        st = T::L190;
+                        continue;
+                    }
+                    if beta == 0.0 {
+                        gredsq = stepsq;
+                        itermax = iterc + n - nact;
+                    }
+                    st = if gredsq * delsq <= 1.0e-4 * qred * qred {
+                        T::L190
+                    } else {
+                        T::L210
+                    };
+                }
+                T::L50 => {
+                    let mut resid = delsq;
+                    let mut ds = 0.0;
+                    let mut shs = 0.0;
+                    for i in 0..n {
+                        if xbdi[i] == 0.0 {
+                            resid -= d[i] * d[i];
+                            ds += s[i] * d[i];
+                            shs += s[i] * hs[i];
+                        }
+                    }
+                    if resid <= 0.0 {
+                        st = T::L90;
+                        continue;
+                    }
+                    let temp = (stepsq * resid + ds * ds).sqrt();
+                    let blen = if ds < 0.0 {
+                        (temp - ds) / stepsq
+                    } else {
+                        resid / (temp + ds)
+                    };
+                    let mut stplen = blen;
+                    if shs > 0.0 {
+                        stplen = blen.min(gredsq / shs);
+                    }
+                    iact = NONE;
+                    for i in 0..n {
+                        if s[i] != 0.0 {
+                            let xsum = xopt[i] + d[i];
+                            let temp = if s[i] > 0.0 {
+                                (su[i] - xsum) / s[i]
+                            } else {
+                                (sl[i] - xsum) / s[i]
+                            };
+                            if temp < stplen {
+                                stplen = temp;
+                                iact = i;
+                            }
+                        }
+                    }
+                    let mut sdec = 0.0;
+                    if stplen > 0.0 {
+                        iterc += 1;
+                        let temp = shs / stepsq;
+                        if iact == NONE && temp > 0.0 {
+                            crvmin = f64::min(crvmin, temp);
+                            if crvmin == -1.0 {
+                                crvmin = temp;
+                            }
+                        }
+                        ggsav = gredsq;
+                        gredsq = 0.0;
+                        for i in 0..n {
+                            gnew[i] += stplen * hs[i];
+                            if xbdi[i] == 0.0 {
+                                gredsq += gnew[i] * gnew[i];
+                            }
+                            d[i] += stplen * s[i];
+                        }
+                        sdec = (stplen * (ggsav - 0.5 * stplen * shs)).max(0.0);
+                        qred += sdec;
+                    }
+                    if iact != NONE {
+                        nact += 1;
+                        xbdi[iact] = if s[iact] < 0.0 { -1.0 } else { 1.0 };
+                        delsq -= d[iact] * d[iact];
+                        st = if delsq <= 0.0 { T::L90 } else { T::L20 };
+                        continue;
+                    }
+                    if stplen < blen {
+                        if iterc == itermax || sdec <= 0.01 * qred {
+                            st = T::L190;
+                            continue;
+                        }
+                        beta = gredsq / ggsav;
+                        st = T::L30;
+                        continue;
+                    }
+                    st = T::L90;
+                }
+                T::L90 => {
+                    crvmin = 0.0;
+                    st = T::L100;
+                }
+                T::L100 => {
+                    if nact + 1 >= n {
+                        st = T::L190;
+                        continue;
+                    }
+                    dredsq = 0.0;
+                    dredg = 0.0;
+                    gredsq = 0.0;
+                    for i in 0..n {
+                        if xbdi[i] == 0.0 {
+                            dredsq += d[i] * d[i];
+                            dredg += d[i] * gnew[i];
+                            gredsq += gnew[i] * gnew[i];
+                            s[i] = d[i];
+                        } else {
+                            s[i] = 0.0;
+                        }
+                    }
+                    itcsav = iterc;
+                    st = T::L210;
+                }
+                T::L120 => {
+                    iterc += 1;
+                    let temp = gredsq * dredsq - dredg * dredg;
+                    if temp <= 1.0e-4 * qred * qred {
+                        st = T::L190;
+                        continue;
+                    }
+                    let temp = temp.sqrt();
+                    for i in 0..n {
+                        s[i] = if xbdi[i] == 0.0 {
+                            (dredg * d[i] - dredsq * gnew[i]) / temp
+                        } else {
+                            0.0
+                        };
+                    }
+                    sredg = -temp;
+                    angbd = 1.0;
+                    iact = NONE;
+                    let mut fixed = false;
+                    for i in 0..n {
+                        if xbdi[i] == 0.0 {
+                            let tempa = xopt[i] + d[i] - sl[i];
+                            let tempb = su[i] - xopt[i] - d[i];
+                            if tempa <= 0.0 {
+                                nact += 1;
+                                xbdi[i] = -1.0;
+                                fixed = true;
+                                break;
+                            } else if tempb <= 0.0 {
+                                nact += 1;
+                                xbdi[i] = 1.0;
+                                fixed = true;
+                                break;
+                            }
+                            let ssq = d[i] * d[i] + s[i] * s[i];
+                            let t = ssq - (xopt[i] - sl[i]) * (xopt[i] - sl[i]);
+                            if t > 0.0 {
+                                let t = t.sqrt() - s[i];
+                                if angbd * t > tempa {
+                                    angbd = tempa / t;
+                                    iact = i;
+                                    xsav = -1.0;
+                                }
+                            }
+                            let t = ssq - (su[i] - xopt[i]) * (su[i] - xopt[i]);
+                            if t > 0.0 {
+                                let t = t.sqrt() + s[i];
+                                if angbd * t > tempb {
+                                    angbd = tempb / t;
+                                    iact = i;
+                                    xsav = 1.0;
+                                }
+                            }
+                        }
+                    }
+                    st = if fixed { T::L100 } else { T::L210 };
+                }
+                T::L150 => {
+                    let mut shs = 0.0;
+                    let mut dhs = 0.0;
+                    let mut dhd = 0.0;
+                    for i in 0..n {
+                        if xbdi[i] == 0.0 {
+                            shs += s[i] * hs[i];
+                            dhs += d[i] * hs[i];
+                            dhd += d[i] * hred[i];
+                        }
+                    }
+                    let mut redmax = 0.0;
+                    let mut isav = 0usize;
+                    let mut redsav = 0.0;
+                    let mut rdprev = 0.0;
+                    let mut rdnext = 0.0;
+                    let iu = (17.0 * angbd + 3.1) as usize;
+                    let mut angt = 0.0;
+                    for i in 1..=iu {
+                        angt = angbd * i as f64 / iu as f64;
+                        let sth = (angt + angt) / (1.0 + angt * angt);
+                        let temp = shs + angt * (angt * dhd - dhs - dhs);
+                        let rednew = sth * (angt * dredg - sredg - 0.5 * sth * temp);
+                        if rednew > redmax {
+                            redmax = rednew;
+                            isav = i;
+                            rdprev = redsav;
+                        } else if i == isav + 1 {
+                            rdnext = rednew;
+                        }
+                        redsav = rednew;
+                    }
+                    if isav == 0 {
+                        st = T::L190;
+                        continue;
+                    }
+                    if isav < iu {
+                        let temp = (rdnext - rdprev) / (redmax + redmax - rdprev - rdnext);
+                        angt = angbd * (isav as f64 + 0.5 * temp) / iu as f64;
+                    }
+                    let cth = (1.0 - angt * angt) / (1.0 + angt * angt);
+                    let sth = (angt + angt) / (1.0 + angt * angt);
+                    let temp = shs + angt * (angt * dhd - dhs - dhs);
+                    let sdec = sth * (angt * dredg - sredg - 0.5 * sth * temp);
+                    if sdec <= 0.0 {
+                        st = T::L190;
+                        continue;
+                    }
+                    dredg = 0.0;
+                    gredsq = 0.0;
+                    for i in 0..n {
+                        gnew[i] += (cth - 1.0) * hred[i] + sth * hs[i];
+                        if xbdi[i] == 0.0 {
+                            d[i] = cth * d[i] + sth * s[i];
+                            dredg += d[i] * gnew[i];
+                            gredsq += gnew[i] * gnew[i];
+                        }
+                        hred[i] = cth * hred[i] + sth * hs[i];
+                    }
+                    qred += sdec;
+                    if iact != NONE && isav == iu {
+                        nact += 1;
+                        xbdi[iact] = xsav;
+                        st = T::L100;
+                        continue;
+                    }
+                    st = if sdec > 0.01 * qred { T::L120 } else { T::L190 };
+                }
+                T::L190 => {
+                    let mut dsq = 0.0;
+                    for i in 0..n {
+                        let mut v = (xopt[i] + d[i]).min(su[i]).max(sl[i]);
+                        if xbdi[i] == -1.0 {
+                            v = sl[i];
+                        }
+                        if xbdi[i] == 1.0 {
+                            v = su[i];
+                        }
+                        xnew[i] = v;
+                        d[i] = v - xopt[i];
+                        dsq += d[i] * d[i];
+                    }
+                    return (dsq, crvmin);
+                }
+                T::L210 => {
+                    hess_mul(n, hq, pq, xpt, s, hs);
+                    if crvmin != 0.0 {
+                        st = T::L50;
+                    } else if iterc > itcsav {
+                        st = T::L150;
+                    } else {
+                        hred.copy_from_slice(hs);
+                        st = T::L120;
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(rb: f64, re: f64) -> BobyqaRun {
+        BobyqaRun {
+            rho_begin: rb,
+            rho_end: re,
+            max_evals: 100_000,
+        }
+    }
+
+    #[test]
+    fn errors_not_panics() {
+        assert!(Bobyqa::new(1, 3).is_err());
+        assert!(Bobyqa::new(3, 4).is_err());
+        assert!(Bobyqa::new(3, 11).is_err());
+        let mut b = Bobyqa::new(3, 7).unwrap();
+        let mut x = [0.0; 3];
+        let (lo, hi) = ([0.0; 3], [1.0; 3]);
+        let f = |x: &[f64]| x.iter().sum::<f64>();
+        assert!(b.minimize(f, &mut x, &lo, &hi, &run(0.6, 0.01)).is_err()); // box too small
+        assert!(b.minimize(f, &mut x, &lo, &hi, &run(0.1, 0.2)).is_err());
+        assert!(b.minimize(f, &mut x, &lo, &hi, &run(f64::NAN, 0.01)).is_err());
+        assert!(b.minimize(f, &mut x[..2], &lo, &hi, &run(0.1, 0.01)).is_err());
+        let r = BobyqaRun {
+            max_evals: 7,
+            ..run(0.1, 0.01)
+        };
+        assert!(b.minimize(f, &mut x, &lo, &hi, &r).is_err());
+        let mut x = [0.5; 3];
+        let e = b.minimize(
+            |x: &[f64]| if x[0] > 0.55 { f64::NAN } else { 1.0 },
+            &mut x,
+            &lo,
+            &hi,
+            &run(0.1, 0.01),
+        );
+        assert!(matches!(e, Err(Error::Numerical { .. })));
+        // usable again after an error
+        let mut x = [0.5; 3];
+        let o = b.minimize(
+            |x: &[f64]| x.iter().map(|v| (v - 0.3) * (v - 0.3)).sum(),
+            &mut x,
+            &lo,
+            &hi,
+            &run(0.1, 1e-6),
+        );
+        let o = o.unwrap();
+        assert!(o.f < 1e-10, "{o:?} {x:?}");
+    }
+}
