@@ -51,6 +51,9 @@
 //! | `rho_end` | final trust radius | `(0, rho_begin]` |
 //! | `max_evals` | evaluation cap | `> npt` |
 
+// Index loops mirror Powell's Fortran (several arrays indexed together); kept for traceability.
+#![allow(clippy::needless_range_loop)]
+
 use crate::error::{Error, Result};
 
 /// Why [`Bobyqa::minimize`] stopped.
@@ -296,7 +299,7 @@ impl Bobyqa {
             if !x[i].is_finite() {
                 return Err(Error::invalid("x0", x[i], format!("finite (component {i})")));
             }
-            if lo[i].is_nan() || hi[i].is_nan() || !(hi[i] - lo[i] >= 2.0 * run.rho_begin) {
+            if lo[i].is_nan() || hi[i].is_nan() || hi[i] - lo[i] < 2.0 * run.rho_begin {
                 return Err(Error::invalid(
                     "bounds",
                     format!("[{}, {}] for variable {i}", lo[i], hi[i]),

@@ -7,8 +7,8 @@
 //! result with `rho` 0.075 -> 0.005 (as the seed, and as the dlib anchor
 //! `shared/anchors/bench_bobyqa_fit.py` times `dlib::find_min_bobyqa`).
 //!
-//! Implementation: the `bobyqa` crate (=0.3.2, a pure-Rust port of PRIMA's Fortran BOBYQA,
-//! bit-exact against PRIMA's trajectories, zero allocation after construction). We evaluate the
+//! Implementation: our own BOBYQA, [`crate::bobyqa::Bobyqa`] (Powell 2009 port, flat arrays
+//! allocated once in the workspace, no allocation per solve). We evaluate the
 //! objective through the precomputed Gram matrix, `f(e) = s^2 (e^T G e - 2 e^T D b' + b'^T b')
 //! + ...`, O(n^2) per evaluation instead of O(136 n) (same values to rounding; tested).
 //!
