@@ -730,29 +730,21 @@ impl Fitter {
             }
             Method::NonNegative => {
                 // H_db = U H U^T + lambda I ; f = -(U g + lambda w0)
-                let tmp = &mut ws.tmp[..d * r];
-                // tmp = U H, row by row as axpys over the contiguous rows of `h`.
-                for (trow, urow) in tmp.chunks_exact_mut(r).zip(u.chunks_exact(r)) {
-                    trow.iter_mut().for_each(|v| *v = 0.0);
-                    for (&ul, hrow) in urow.iter().zip(h.chunks_exact(r)) {
-                        for (tv, hv) in trow.iter_mut().zip(hrow) {
-                            *tv += ul * hv;
-                        }
-                    }
-                }
-                let hdb = &mut ws.hdb[..d * d];
-                for i in 0..d {
-                    for j in 0..d {
-                        hdb[i * d + j] = dot(&tmp[i * r..(i + 1) * r], &u[j * r..(j + 1) * r]);
-                    }
-                    hdb[i * d + i] += lambda;
-                }
+                pulp::Arch::new().dispatch(Uhu {
+                    u,
+                    h,
+                    d,
+                    r,
+                    lambda,
+                    tmp: &mut ws.tmp[..d * r],
+                    hdb: &mut ws.hdb[..d * d],
+                });
                 let fdb = &mut ws.fdb[..d];
                 for i in 0..d {
                     fdb[i] = -(dot(&u[i * r..(i + 1) * r], &ws.g[..r]) + lambda * prior[i]);
                 }
                 nnls::solve_polished_into(
-                    hdb,
+                    &ws.hdb[..d * d],
                     fdb,
                     w,
                     &mut ws.grad[..d],
@@ -1105,6 +1097,52 @@ impl pulp::WithSimd for PointsFromRot<'_> {
             for c in 0..3 {
                 p[c] = m[c] + (rot[c] * v[0] + rot[3 + c] * v[1] + rot[6 + c] * v[2]);
             }
+        }
+    }
+}
+
+/// `hdb = U H U^T + lambda I` (`U`: `d x r`, `H`: `r x r` symmetric, both row-major; the
+/// upper triangle computed and mirrored) as a [`pulp::WithSimd`] operation.
+struct Uhu<'a> {
+    u: &'a [f64],
+    h: &'a [f64],
+    d: usize,
+    r: usize,
+    lambda: f64,
+    tmp: &'a mut [f64],
+    hdb: &'a mut [f64],
+}
+
+impl pulp::WithSimd for Uhu<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let Uhu {
+            u,
+            h,
+            d,
+            r,
+            lambda,
+            tmp,
+            hdb,
+        } = self;
+        // tmp = U H, row by row as axpys over the contiguous rows of `h`.
+        for (trow, urow) in tmp.chunks_exact_mut(r).zip(u.chunks_exact(r)) {
+            trow.iter_mut().for_each(|v| *v = 0.0);
+            for (&ul, hrow) in urow.iter().zip(h.chunks_exact(r)) {
+                for (tv, hv) in trow.iter_mut().zip(hrow) {
+                    *tv += ul * hv;
+                }
+            }
+        }
+        for i in 0..d {
+            for j in i..d {
+                let v = dot(&tmp[i * r..(i + 1) * r], &u[j * r..(j + 1) * r]);
+                hdb[i * d + j] = v;
+                hdb[j * d + i] = v;
+            }
+            hdb[i * d + i] += lambda;
         }
     }
 }
