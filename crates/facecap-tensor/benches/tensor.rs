@@ -5,11 +5,11 @@
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_tensor::fit::{FitInput, FitParams, Fitter, Method};
+use facecap_tensor::fit::{FitParams, Fitter, Method};
 use facecap_tensor::model::{HosvdParams, TensorModel};
 use facecap_tensor::synth;
-use nalgebra::{Point3, Vector3};
+
+mod common;
 
 fn hosvd(c: &mut Criterion) {
     let d = synth::database(5090, 56, 7, 1).unwrap();
@@ -22,26 +22,8 @@ fn hosvd(c: &mut Criterion) {
 }
 
 fn fit_sweep(c: &mut Criterion) {
-    let d = synth::database(5090, 56, 7, 2).unwrap();
-    let (model, _) = TensorModel::build(&d, &HosvdParams::default()).unwrap();
-    let vertices: Vec<u32> = (0..500).map(|k| k * 10).collect();
-    let k = Intrinsics::new(900.0, 900.0, 320.0, 240.0).unwrap();
-    let pose = ModelToCamera::from_rvec_tvec(Vector3::new(0.1, -0.2, 0.0), Vector3::new(0.0, 0.0, 60.0));
-    let f = model.generate(&[1.0 / 56.0; 56], &[1.0 / 7.0; 7]).unwrap();
-    let image: Vec<_> = vertices
-        .iter()
-        .map(|&v| {
-            let v = v as usize;
-            pose.project(&k, &Point3::new(f[3 * v] + 0.1, f[3 * v + 1], f[3 * v + 2]))
-                .unwrap()
-        })
-        .collect();
-    let weights = vec![1.0; 500];
-    let input = FitInput {
-        image: &image,
-        weights: &weights,
-        intrinsics: k,
-    };
+    let problem = common::SweepProblem::new();
+    let (model, vertices, input) = (&problem.model, &problem.vertices, problem.input());
     let mut g = c.benchmark_group("tensor_fit_sweep_500pts");
     g.sample_size(30).measurement_time(Duration::from_secs(4));
     // Full sweep (pose + expression + identity), and the per-frame video case
@@ -59,7 +41,7 @@ fn fit_sweep(c: &mut Criterion) {
             update_identity,
             ..Default::default()
         };
-        let fitter = Fitter::new(&model, &vertices, params).unwrap();
+        let fitter = Fitter::new(model, vertices, params).unwrap();
         let mut ws = fitter.workspace();
         let mut st = fitter.initial_state();
         fitter.solve_into(&input, &mut ws, &mut st).unwrap();

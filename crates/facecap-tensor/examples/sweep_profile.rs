@@ -10,11 +10,10 @@
 
 use std::time::Instant;
 
-use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_tensor::fit::{FitInput, FitParams, Fitter, Method};
-use facecap_tensor::model::{HosvdParams, TensorModel};
-use facecap_tensor::synth;
-use nalgebra::{Point3, Vector3};
+use facecap_tensor::fit::{FitParams, Fitter, Method};
+
+#[path = "../benches/common/mod.rs"]
+mod common;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -24,26 +23,8 @@ fn main() {
     };
     let update_identity = args.get(2).map(String::as_str) != Some("fixed");
     let sweeps: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(2000);
-    let d = synth::database(5090, 56, 7, 2).unwrap();
-    let (model, _) = TensorModel::build(&d, &HosvdParams::default()).unwrap();
-    let vertices: Vec<u32> = (0..500).map(|k| k * 10).collect();
-    let k = Intrinsics::new(900.0, 900.0, 320.0, 240.0).unwrap();
-    let pose = ModelToCamera::from_rvec_tvec(Vector3::new(0.1, -0.2, 0.0), Vector3::new(0.0, 0.0, 60.0));
-    let f = model.generate(&[1.0 / 56.0; 56], &[1.0 / 7.0; 7]).unwrap();
-    let image: Vec<_> = vertices
-        .iter()
-        .map(|&v| {
-            let v = v as usize;
-            pose.project(&k, &Point3::new(f[3 * v] + 0.1, f[3 * v + 1], f[3 * v + 2]))
-                .unwrap()
-        })
-        .collect();
-    let weights = vec![1.0; 500];
-    let input = FitInput {
-        image: &image,
-        weights: &weights,
-        intrinsics: k,
-    };
+    let problem = common::SweepProblem::new();
+    let (model, vertices, input) = (&problem.model, &problem.vertices, problem.input());
     let params = FitParams {
         method,
         max_sweeps: 1,
@@ -51,7 +32,7 @@ fn main() {
         update_identity,
         ..Default::default()
     };
-    let fitter = Fitter::new(&model, &vertices, params).unwrap();
+    let fitter = Fitter::new(model, vertices, params).unwrap();
     let mut ws = fitter.workspace();
     let mut st = fitter.initial_state();
     fitter.solve_into(&input, &mut ws, &mut st).unwrap();
