@@ -78,9 +78,9 @@ pub struct Args {
     /// Videos processed at once (default: number of cores).
     #[arg(long)]
     pub jobs: Option<usize>,
-    /// Per-subject neutral calibration: `none`, `auto` (the frame with the least
-    /// expression is taken as the subject's neutral) or a frame index where the
-    /// subject's face is at rest. See docs/capture.md.
+    /// Per-subject neutral calibration: `none`, `auto` (the frame whose face shape is
+    /// closest to the clip's median face shape is taken as the subject's neutral) or
+    /// a frame index where the subject's face is at rest. See docs/capture.md.
     #[arg(long, default_value = "none")]
     pub neutral: String,
     /// ffmpeg decoder threads per video (0 = ffmpeg's choice). One thread per video
@@ -595,25 +595,20 @@ fn capture_one(
     // the tracking error (e.g. an interrupt) first, then the others
     timings.track = track_result?;
     let collected = stage_result?;
+    // a decoding error (a corrupt or truncated video) ends the capture before any
+    // calibration work
+    timings.decode = decode_result?;
     let mut neutral_report = serde_json::Value::Null;
     if calibrate {
         let tracked_frames: Vec<(u64, Landmarks68)> = collected
             .iter()
             .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
             .collect();
-        let cal = crate::neutral::calibrate(
-            setup.neutral,
-            &setup.rig,
-            setup.method,
-            camera,
-            setup.objective,
-            &tracked_frames,
-        )?;
+        let cal = crate::neutral::calibrate(setup.neutral, &solver, &setup.rig, camera, &tracked_frames)?;
         neutral_report = cal.report;
         let calibrated = AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?;
         stage.run(&calibrated, collected)?;
     }
-    timings.decode = decode_result?;
     let SolveStage {
         bar,
         sheet,

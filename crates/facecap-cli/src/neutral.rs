@@ -24,7 +24,7 @@
 
 use facecap_core::camera::Intrinsics;
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
-use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, Solution, SolveState};
+use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Solution, SolveState};
 use nalgebra::Point3;
 use serde_json::json;
 
@@ -63,41 +63,35 @@ pub struct Calibrated {
 }
 
 /// Calibrates `rig` on `frames` (frame index, tracked landmarks), see the module docs.
+/// `solver` is the generic rig's solver (built from `rig`); `camera` is the one it
+/// was built with.
 ///
 /// # Errors
 /// When the named frame has no tracked face, no frame has one, or the solver fails on
 /// the neutral frame.
 pub fn calibrate(
     choice: NeutralChoice,
+    solver: &AnySolver,
     rig: &BlendshapeRig,
-    method: Method,
     camera: Intrinsics,
-    objective: ObjectiveParams,
     frames: &[(u64, Landmarks68)],
 ) -> anyhow::Result<Calibrated> {
-    let solver = AnySolver::new(method, rig, camera, objective)?;
-    let n = solver.num_shapes();
-    let mut ws = solver.workspace();
-    let mut state = SolveState::new(n);
-    let mut sol = Solution::new(n);
-    let (neutral_pos, _) = match choice {
+    let neutral_pos = match choice {
         NeutralChoice::None => anyhow::bail!("no neutral calibration was asked for"),
-        NeutralChoice::Frame(f) => {
-            let pos = frames
-                .iter()
-                .position(|(i, _)| *i == f)
-                .ok_or_else(|| anyhow::anyhow!("--neutral {f}: no face was tracked on frame {f}"))?;
-            (pos, f64::NAN)
-        }
+        NeutralChoice::Frame(f) => frames
+            .iter()
+            .position(|(i, _)| *i == f)
+            .ok_or_else(|| anyhow::anyhow!("--neutral {f}: no face was tracked on frame {f}"))?,
         NeutralChoice::Auto => {
-            let k = median_face_frame(frames).ok_or_else(|| anyhow::anyhow!("--neutral auto: no tracked frame"))?;
-            (k, f64::NAN)
+            median_face_frame(frames).ok_or_else(|| anyhow::anyhow!("--neutral auto: no tracked frame"))?
         }
     };
     let (frame_index, obs) = &frames[neutral_pos];
-    state.reset();
+    let n = solver.num_shapes();
+    let mut ws = solver.workspace();
+    let mut sol = Solution::new(n);
     solver
-        .solve_into(obs, &mut ws, &mut state, &mut sol)
+        .solve_into(obs, &mut ws, &mut SolveState::new(n), &mut sol)
         .map_err(|e| anyhow::anyhow!("solving the neutral frame {frame_index}: {e}"))?;
     let before: f64 = sol.weights.iter().sum();
     let mut out = rig.clone();
@@ -126,8 +120,9 @@ pub fn calibrate(
             // the 2D basis is the frontal view (x, y) = (X, -Y)
             let (fx, fy) = sim.apply(x.x, -x.y);
             moved_px.push(((fx - p.x).powi(2) + (fy - p.y).powi(2)).sqrt());
+            // offset in the basis frame, then back to the rig's axes (Y = -y)
             let (bx, by) = sim.apply_inverse(p.x, p.y);
-            nalgebra::Vector3::new(bx - x.x, -(by - -x.y), 0.0)
+            nalgebra::Vector3::new(bx - x.x, -(by + x.y), 0.0)
         } else {
             anyhow::bail!("the solver gave neither a pose nor a similarity for the neutral frame");
         };
@@ -197,6 +192,7 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
     use super::*;
     use facecap_core::camera::ModelToCamera;
+    use facecap_solve::{Method, ObjectiveParams};
     use nalgebra::{Point2, Vector3};
 
     /// A subject whose neutral differs from the rig's: after calibration on a neutral
@@ -253,7 +249,8 @@ mod tests {
             (se / (8 * frames.len()) as f64).sqrt()
         };
         let generic = rmse(&rig);
-        let cal = calibrate(NeutralChoice::Auto, &rig, Method::Exact3d, camera, objective, &frames).unwrap();
+        let solver_3d = AnySolver::new(Method::Exact3d, &rig, camera, objective).unwrap();
+        let cal = calibrate(NeutralChoice::Auto, &solver_3d, &rig, camera, &frames).unwrap();
         assert_eq!(cal.report["frame"], 0);
         let calibrated = rmse(&cal.rig);
         assert!(
@@ -265,26 +262,11 @@ mod tests {
             "calibrated {calibrated} vs generic {generic}"
         );
         // explicit frame; a frame without a face is an error
-        assert!(calibrate(
-            NeutralChoice::Frame(0),
-            &rig,
-            Method::Exact3d,
-            camera,
-            objective,
-            &frames
-        )
-        .is_ok());
-        assert!(calibrate(
-            NeutralChoice::Frame(99),
-            &rig,
-            Method::Exact3d,
-            camera,
-            objective,
-            &frames
-        )
-        .is_err());
+        assert!(calibrate(NeutralChoice::Frame(0), &solver_3d, &rig, camera, &frames).is_ok());
+        assert!(calibrate(NeutralChoice::Frame(99), &solver_3d, &rig, camera, &frames).is_err());
         // the 2D exact solver calibrates through its similarity
-        let cal2 = calibrate(NeutralChoice::Frame(0), &rig, Method::Exact, camera, objective, &frames).unwrap();
+        let solver_2d = AnySolver::new(Method::Exact, &rig, camera, objective).unwrap();
+        let cal2 = calibrate(NeutralChoice::Frame(0), &solver_2d, &rig, camera, &frames).unwrap();
         assert!(cal2.report["mean_landmark_offset_px"].as_f64().unwrap() > 0.0);
     }
 }
