@@ -572,16 +572,17 @@ impl<F: FaceFinder, S: ShapeRegressor> LandmarkTracker<F, S> {
             let prev = &state.prev.points;
             // 3a. Cheap motion test; LK only when the face moved.
             let motion = global_motion(&ws.prev_gray, img, &state.prev.bounding_box());
-            report.motion_estimate = motion.map_or(f64::INFINITY, |m| m.shift);
+            report.motion_estimate = motion.map_or(f64::INFINITY, |m| m.shift());
             report.motion_residual = motion.map_or(f64::INFINITY, |m| m.residual);
-            let small = |m: &Motion| m.residual <= p.lk_residual_threshold;
             let use_lk = match motion {
-                Some(m) => !small(&m) || m.shift > p.lk_motion_threshold.max(p.translate_max),
+                Some(m) => {
+                    m.residual > p.lk_residual_threshold || m.shift() > p.lk_motion_threshold.max(p.translate_max)
+                }
                 None => true,
             };
             // a small shift above the threshold: move the shape by the translation
             let translate = match motion {
-                Some(m) if !use_lk && m.shift > p.lk_motion_threshold => Some((m.dx, m.dy)),
+                Some(m) if !use_lk && m.shift() > p.lk_motion_threshold => Some((m.dx, m.dy)),
                 _ => None,
             };
             let frac = if use_lk {
@@ -794,7 +795,6 @@ fn global_motion(prev: &GrayImage, cur: &GrayImage, face: &Rect) -> Option<Motio
     Some(Motion {
         dx,
         dy,
-        shift: (dx * dx + dy * dy).sqrt(),
         residual: ((tt as f64 - explained).max(0.0) / n.max(1) as f64).sqrt(),
     })
 }
@@ -805,10 +805,15 @@ struct Motion {
     /// Estimated translation (px).
     dx: f64,
     dy: f64,
-    /// Estimated translation length (px).
-    shift: f64,
     /// RMS unexplained grey-level difference.
     residual: f64,
+}
+
+impl Motion {
+    /// Estimated translation length (px).
+    fn shift(&self) -> f64 {
+        (self.dx * self.dx + self.dy * self.dy).sqrt()
+    }
 }
 
 /// The landmarks LK tracks when it runs: the rigid nose and eye points, whose
