@@ -153,6 +153,22 @@ fn cost_never_increases_between_sweeps() {
     }
 }
 
+/// `H = AᵀA` and `f = -Aᵀb` (row-major `A`, `n` columns): the NNLS problem
+/// `min ½xᵀHx + fᵀx, x >= 0` of the least squares `min |Ax - b|²`.
+fn normal_equations(a: &[f64], b: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut h = vec![0.0; n * n];
+    let mut f = vec![0.0; n];
+    for (row, &br) in a.chunks_exact(n).zip(b) {
+        for i in 0..n {
+            f[i] -= row[i] * br;
+            for j in 0..n {
+                h[i * n + j] += row[i] * row[j];
+            }
+        }
+    }
+    (h, f)
+}
+
 #[test]
 fn nnls_matches_exhaustive_reference() {
     let mut rng = ChaCha8Rng::seed_from_u64(77);
@@ -161,16 +177,7 @@ fn nnls_matches_exhaustive_reference() {
         let m = n + 3;
         let a: Vec<f64> = (0..m * n).map(|_| rng.random_range(-1.0..1.0)).collect();
         let b: Vec<f64> = (0..m).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let mut h = vec![0.0; n * n];
-        let mut f = vec![0.0; n];
-        for r in 0..m {
-            for i in 0..n {
-                f[i] -= a[r * n + i] * b[r];
-                for j in 0..n {
-                    h[i * n + j] += a[r * n + i] * a[r * n + j];
-                }
-            }
-        }
+        let (h, f) = normal_equations(&a, &b, n);
         let reference = nnls::reference_active_sets(&h, &f);
         let mut x = vec![0.0; n];
         let mut g = vec![0.0; n];
@@ -209,16 +216,7 @@ fn polished_nnls_objective_never_increases_on_ill_conditioned_problems() {
             .map(|q| rng.random_range(-1.0..1.0) * 10f64.powf(-3.0 * (q % n) as f64 / n as f64))
             .collect();
         let b: Vec<f64> = (0..m).map(|_| rng.random_range(-1.0..1.0)).collect();
-        let mut h = vec![0.0; n * n];
-        let mut f = vec![0.0; n];
-        for r in 0..m {
-            for i in 0..n {
-                f[i] -= a[r * n + i] * b[r];
-                for j in 0..n {
-                    h[i * n + j] += a[r * n + i] * a[r * n + j];
-                }
-            }
-        }
+        let (h, f) = normal_equations(&a, &b, n);
         let mut x = vec![0.0; n];
         let mut g = vec![0.0; n];
         let mut sc = vec![0.0; nnls::polish_scratch_len(n)];
