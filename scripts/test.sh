@@ -13,6 +13,12 @@ cd "$ROOT"
 
 step() { echo; echo "==> $*"; }
 
+# A CI run builds everything once from a clean clone: incremental compilation caches would
+# only take disk space there (several hundred MB).
+if [ -n "${CI:-}" ]; then
+  export CARGO_INCREMENTAL=0
+fi
+
 step "setup (dependencies only)"
 bash scripts/setup.sh --deps-only </dev/null
 
