@@ -342,9 +342,9 @@ fn build_hessian<S: Simd>(simd: S, n: usize, hq: &[f64], pq: &[f64], xpt: &[f64]
                 let h1 = S::as_mut_simd_f64s(&mut r1[c0..c1]).0;
                 let mut a0 = [zero; TILE];
                 let mut a1 = [zero; TILE];
-                for t in 0..TILE.min(h0.len()).min(h1.len()) {
-                    a0[t] = h0[t];
-                    a1[t] = h1[t];
+                for ((a, b), (x, y)) in a0.iter_mut().zip(a1.iter_mut()).zip(h0.iter().zip(h1.iter())) {
+                    *a = *x;
+                    *b = *y;
                 }
                 for (y, wr) in xpt.chunks_exact(n).zip(w.chunks_exact(n)) {
                     let yv = S::as_simd_f64s(&y[c0..c1]).0;
@@ -356,9 +356,9 @@ fn build_hessian<S: Simd>(simd: S, n: usize, hq: &[f64], pq: &[f64], xpt: &[f64]
                         }
                     }
                 }
-                for t in 0..TILE.min(h0.len()).min(h1.len()) {
-                    h0[t] = a0[t];
-                    h1[t] = a1[t];
+                for ((x, y), (a, b)) in h0.iter_mut().zip(h1.iter_mut()).zip(a0.iter().zip(a1.iter())) {
+                    *x = *a;
+                    *y = *b;
                 }
             } else {
                 for r in i..i + rows {
@@ -821,7 +821,7 @@ impl Bobyqa {
         Ok(kopt)
     }
 
-    #[allow(clippy::too_many_lines)]
+    #[allow(clippy::too_many_lines, clippy::too_many_arguments)]
     #[inline(always)]
     fn bobyqb<S: Simd>(
         &mut self,
