@@ -5,16 +5,19 @@
 //! as dlib's driver. Prints wall time per solve (mean, median, min) and the process CPU time per
 //! solve (from /proc/self/stat over the whole loop), plus evaluations.
 //!
-//! With a second argument, the problem file the anchor `shared/anchors/bench_bobyqa_fit.py` writes
-//! for dlib's driver (`data/bobyqa_problem.bin`: the anchor's own shapes and problems) is solved
-//! instead, with exactly the anchor's objective `||neutral + D^T w - obs||^2 + lambda sum |w|`
-//! (no alignment; evaluated through the Gram matrix, same values) and the same two passes.
+//! With a second argument, a problem file in the format of the anchor's dlib driver is solved
+//! instead (the anchor's `data/bobyqa_problem.bin` written by `shared/anchors/bench_bobyqa_fit.py`,
+//! or the 53-shape problems of `examples/bobyqa_problem53.rs`), by our BOBYQA
+//! ([`facecap_solve::bobyqa::Bobyqa`]) with exactly the driver's objective
+//! `||neutral + D^T w - obs||^2 + lambda sum |w|` (no alignment; evaluated through the Gram
+//! matrix, same values) and the same two passes.
 //!
 //! `cargo run --release -p facecap-solve --example bobyqa_timing [-- REPS [ANCHOR_PROBLEM.bin]]`
 
 use std::time::Instant;
 
 use facecap_core::landmarks::Landmarks68;
+use facecap_solve::bobyqa::{Bobyqa, BobyqaRun};
 use facecap_solve::{Basis2d, BobyqaParams, BobyqaSolver, ExpressionSolver, Solution, SolveState};
 
 #[derive(serde::Deserialize)]
@@ -68,15 +71,7 @@ fn anchor_problem(reps: usize, path: &str) {
             gram[a * k + c] = (0..m).map(|j| d[a * m + j] * d[c * m + j]).sum();
         }
     }
-    let mk = |re: f64| {
-        let mut c = bobyqa::Config::new(k);
-        c.npt = npt;
-        c.rho_begin = rho_begin;
-        c.rho_end = re;
-        c.max_fun = max_evals;
-        bobyqa::Bobyqa::new(k, c).unwrap()
-    };
-    let mut engines = [mk(rho_end[0]), mk(rho_end[1])];
+    let mut engine = Bobyqa::new(k, npt).unwrap();
     let (lo, hi) = (vec![0.0; k], vec![1.0; k]);
     let (mut t, mut evals, mut fs) = (Vec::new(), Vec::new(), Vec::new());
     let mut x = vec![0.0; k];
@@ -98,21 +93,29 @@ fn anchor_problem(reps: usize, path: &str) {
             let t0 = Instant::now();
             let mut ev = 0;
             let mut f = 0.0;
-            for e in engines.iter_mut() {
-                let o = e.minimize(
-                    |w: &[f64]| {
-                        let mut s = bb;
-                        for a in 0..k {
-                            let gw: f64 = (0..k).map(|c| gram[a * k + c] * w[c]).sum();
-                            s += w[a] * (gw - 2.0 * dtb[a]) + lambda * w[a].abs();
-                        }
-                        s
-                    },
-                    &mut x,
-                    &lo,
-                    &hi,
-                );
-                ev += o.n_eval;
+            for re in rho_end {
+                let run = BobyqaRun {
+                    rho_begin,
+                    rho_end: re,
+                    max_evals,
+                };
+                let o = engine
+                    .minimize(
+                        |w: &[f64]| {
+                            let mut s = bb;
+                            for a in 0..k {
+                                let gw: f64 = (0..k).map(|c| gram[a * k + c] * w[c]).sum();
+                                s += w[a] * (gw - 2.0 * dtb[a]) + lambda * w[a].abs();
+                            }
+                            s
+                        },
+                        &mut x,
+                        &lo,
+                        &hi,
+                        &run,
+                    )
+                    .unwrap();
+                ev += o.evaluations;
                 f = o.f;
             }
             if rep > 0 {
@@ -128,7 +131,7 @@ fn anchor_problem(reps: usize, path: &str) {
     evals.sort_unstable();
     fs.sort_by(f64::total_cmp);
     println!(
-        "our BOBYQA (bobyqa crate, two passes) on the anchor's problem file: {p} problems x {reps} reps, {} start:",
+        "our BOBYQA (two passes) on the problem file: {p} problems x {reps} reps, {} start:",
         if warm != 0 { "warm" } else { "cold" }
     );
     println!(
