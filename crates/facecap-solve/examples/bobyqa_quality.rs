@@ -9,30 +9,16 @@
 //!
 //! `cargo run --release -p facecap-solve --example bobyqa_quality [-- PER NOISE]`
 
+mod common;
+
 use facecap_solve::bobyqa::{Bobyqa, BobyqaRun};
 use facecap_solve::qp::{qp_cost, solve_box_qp, QpOptions, QpWorkspace};
 use rand::{Rng, SeedableRng};
 
-#[derive(serde::Deserialize)]
-struct Problem {
-    obs: Vec<f64>,
-}
-#[derive(serde::Deserialize)]
-struct Fixture {
-    lambda: f64,
-    neutral: Vec<f64>,
-    deltas: Vec<Vec<f64>>,
-    problems: Vec<Problem>,
-}
-
 fn main() {
     let per: usize = std::env::args().nth(1).map_or(40, |s| s.parse().unwrap());
     let noise: f64 = std::env::args().nth(2).map_or(1.0, |s| s.parse().unwrap());
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../testdata/solve/bobyqa_dlib_fixture.json"
-    );
-    let fx: Fixture = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let fx = common::load_fixture();
     let (k, m) = (fx.deltas.len(), fx.neutral.len());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let mut probs = Vec::new();

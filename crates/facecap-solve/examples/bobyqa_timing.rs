@@ -14,22 +14,13 @@
 //!
 //! `cargo run --release -p facecap-solve --example bobyqa_timing [-- REPS [ANCHOR_PROBLEM.bin]]`
 
+mod common;
+
 use std::time::Instant;
 
 use facecap_core::landmarks::Landmarks68;
 use facecap_solve::bobyqa::{Bobyqa, BobyqaRun};
 use facecap_solve::{Basis2d, BobyqaParams, BobyqaSolver, ExpressionSolver, Solution, SolveState};
-
-#[derive(serde::Deserialize)]
-struct Problem {
-    obs: Vec<f64>,
-}
-#[derive(serde::Deserialize)]
-struct Fixture {
-    neutral: Vec<f64>,
-    deltas: Vec<Vec<f64>>,
-    problems: Vec<Problem>,
-}
 
 fn cpu_seconds() -> f64 {
     // utime + stime of this process, clock ticks (USER_HZ = 100 on Linux)
@@ -154,11 +145,9 @@ fn main() {
         anchor_problem(reps, &path);
         return;
     }
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../testdata/solve/bobyqa_dlib_fixture.json"
-    );
-    let fx: Fixture = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let fx = common::load_fixture();
+    // the fixture's problems were made with the solver's default L1 weight
+    assert_eq!(fx.lambda, BobyqaParams::default().objective.l1, "fixture lambda");
     let k = fx.deltas.len();
     let mut d = ndarray::Array2::zeros((k, 136));
     for (i, row) in fx.deltas.iter().enumerate() {
