@@ -25,8 +25,12 @@
 //! the average identity / expression).
 //!
 //! **One sweep** (thesis order: pose, expression, identity):
-//! 1. pose by PnP on the current model points (warm-started from the previous pose;
-//!    [`crate::pose`]), then `z`; the step is accepted only if `C` does not increase;
+//! 1. pose by PnP on the current model points: Levenberg-Marquardt on the perspective
+//!    reprojection error ([`crate::pose::refine_perspective`], at most `pose_iterations`
+//!    iterations), warm-started from the state's pose, or, when the previous pose step
+//!    from that same pose was rejected, from the pose that step found (same optimum,
+//!    reached in one pass instead of several); then `z`; the step is accepted only if
+//!    `C` does not increase;
 //! 2. expression in closed form (thesis eq. 3.47):
 //!    with `A` the `2N x r_exp` design (rows `sqrt(rho~_k) R_2 M_k x2 alpha`) and `y` the
 //!    matching residual targets, `beta = (A^T A + lambda_exp I)^{-1} (A^T y + lambda_exp U_exp^T w0_exp)` and
