@@ -300,5 +300,21 @@ mod tests {
         refine_perspective(&model, &image, &w, &k, &mut pose, 30).unwrap_or_else(|_| unreachable!());
         assert!(reprojection_rms(&model, &image, &w, &k, &pose) < 1e-6);
         assert!((pose.tvec() - truth.tvec()).norm() < 1e-6);
+
+        // Noisy points (a non-zero optimum): started at its own optimum the refinement
+        // stops after one normal-equations pass without moving (the predicted decrease
+        // is rounding noise), and it does not stop there when started elsewhere.
+        let noisy: Vec<Point2<f64>> = image
+            .iter()
+            .map(|x| Point2::new(x.x + rng.random_range(-2.0..2.0), x.y + rng.random_range(-2.0..2.0)))
+            .collect();
+        let mut opt = pose;
+        let its = refine_perspective(&model, &noisy, &w, &k, &mut opt, 30).unwrap_or_else(|_| unreachable!());
+        assert!(its > 1, "{its}");
+        let mut again = opt;
+        let its = refine_perspective(&model, &noisy, &w, &k, &mut again, 30).unwrap_or_else(|_| unreachable!());
+        assert_eq!(its, 1);
+        assert_eq!(again, opt);
+        assert!(reprojection_rms(&model, &noisy, &w, &k, &opt) < 2.0);
     }
 }
