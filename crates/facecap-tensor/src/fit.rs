@@ -25,8 +25,12 @@
 //! the average identity / expression).
 //!
 //! **One sweep** (thesis order: pose, expression, identity):
-//! 1. pose by PnP on the current model points (warm-started from the previous pose;
-//!    [`crate::pose`]), then `z`; the step is accepted only if `C` does not increase;
+//! 1. pose by PnP on the current model points: Levenberg-Marquardt on the perspective
+//!    reprojection error ([`crate::pose::refine_perspective`], at most `pose_iterations`
+//!    iterations), warm-started from the state's pose, or, when the previous pose step
+//!    from that same pose was rejected, from the pose that step found (same optimum,
+//!    reached in one pass instead of several); then `z`; the step is accepted only if
+//!    `C` does not increase;
 //! 2. expression in closed form (thesis eq. 3.47):
 //!    with `A` the `2N x r_exp` design (rows `sqrt(rho~_k) R_2 M_k x2 alpha`) and `y` the
 //!    matching residual targets, `beta = (A^T A + lambda_exp I)^{-1} (A^T y + lambda_exp U_exp^T w0_exp)` and
@@ -228,6 +232,9 @@ pub struct FitWorkspace {
     pts_w_id: Vec<f64>,
     pts_w_exp: Vec<f64>,
     pts_valid: bool,
+    /// The last rejected pose step: the state pose it started from and the pose its
+    /// refinement found (the warm start of the next refinement from that state pose).
+    pose_memo: Option<(ModelToCamera, ModelToCamera)>,
 }
 
 /// The fitter: a tensor model restricted to the fitted vertices (immutable, `Send + Sync`).
@@ -235,8 +242,8 @@ pub struct FitWorkspace {
 pub struct Fitter {
     params: FitParams,
     vertices: Vec<u32>,
-    /// `[N][3][r_exp][r_id]` (per point and coordinate, the core slice transposed),
-    /// stored in `f32` to halve the memory traffic of the contractions (all arithmetic
+    /// `[N][3][ceil(r_id / 4)][r_exp][4]` (per point and coordinate, the core slice in
+    /// panels of four identity modes, [`kernels::pack_point`]), stored in `f32` to halve the memory traffic of the contractions (all arithmetic
     /// is in `f64`; see "Precision" in the module docs).
     core: Vec<f32>,
     /// `[N][3]`
@@ -316,19 +323,16 @@ impl Fitter {
             return Err(Error::invalid("fitted vertex", v, format!("< {nv}")));
         }
         let (r_id, r_exp) = (model.rank_id(), model.rank_exp());
-        let blk = r_id * r_exp;
-        let mut core = Vec::with_capacity(vertices.len() * 3 * blk);
+        let mut core = Vec::with_capacity(vertices.len() * 3 * kernels::panel_len(r_id, r_exp));
         let mut mean = Vec::with_capacity(vertices.len() * 3);
         for &v in vertices {
-            for c in 0..3 {
-                let p = 3 * v as usize + c;
-                // Stored transposed, [r_exp][r_id]: both contractions then run over
-                // contiguous length-r_id rows (axpy for `C beta`, dot for `alpha^T C`).
-                // f32 storage (deliberate rounding, see the module docs).
-                #[allow(clippy::cast_possible_truncation)]
-                core.extend(model.core.slice(ndarray::s![p, .., ..]).t().iter().map(|&v| v as f32));
-                mean.push(model.mean[p]);
-            }
+            let p = 3 * v as usize;
+            // Panel layout of `kernels` (groups of four identity modes, each with all
+            // expression modes): both contractions read contiguous 4-wide vectors.
+            // f32 storage (deliberate rounding, see the module docs).
+            #[allow(clippy::cast_possible_truncation)]
+            kernels::pack_point(&mut core, r_id, r_exp, |c, e, j| model.core[[p + c, j, e]] as f32);
+            mean.extend_from_slice(&[model.mean[p], model.mean[p + 1], model.mean[p + 2]]);
         }
         let prior_id = params.prior_id.clone().unwrap_or_else(|| vec![1.0 / ni as f64; ni]);
         let prior_exp = params.prior_exp.clone().unwrap_or_else(|| vec![1.0 / ne as f64; ne]);
@@ -383,7 +387,7 @@ impl Fitter {
         FitWorkspace {
             alpha: vec![0.0; self.r_id],
             beta: vec![0.0; self.r_exp],
-            ab: vec![0.0; self.r_id * self.r_exp],
+            ab: vec![0.0; kernels::panel_len(self.r_id, self.r_exp)],
             pts: vec![Point3::origin(); n],
             design: vec![0.0; 2 * n * pad8(self.r_exp)],
             design_w: vec![0.0; n],
@@ -407,6 +411,7 @@ impl Fitter {
             pts_w_id: vec![0.0; self.ni],
             pts_w_exp: vec![0.0; self.ne],
             pts_valid: false,
+            pose_memo: None,
         }
     }
 
@@ -453,11 +458,7 @@ impl Fitter {
     fn update_points(&self, state: &FitState, ws: &mut FitWorkspace) {
         self.update_modes(state, ws);
         // p = m + <core_row, alpha kron beta>: one long contiguous dot per coordinate.
-        for (b, chunk) in ws.beta.iter().zip(ws.ab.chunks_exact_mut(self.r_id)) {
-            for (o, a) in chunk.iter_mut().zip(&ws.alpha) {
-                *o = a * b;
-            }
-        }
+        kernels::pack_ab(&ws.alpha, &ws.beta, &mut ws.ab);
         kernels::points(&self.core, &self.mean, &ws.ab, &mut ws.pflat);
         for (p, q) in ws.pts.iter_mut().zip(ws.pflat.chunks_exact(3)) {
             *p = Point3::new(q[0], q[1], q[2]);
@@ -578,9 +579,12 @@ impl Fitter {
     /// Pose step; `ws.pts` must hold the current points. Returns the new data cost.
     fn pose_step(&self, input: &FitInput, state: &mut FitState, ws: &mut FitWorkspace) -> Result<()> {
         let old = state.pose;
-        let mut cand = match old {
-            Some(p) => p,
-            None => pose::init_scaled_orthographic(&ws.pts, input.image, input.weights, &input.intrinsics)?,
+        let mut cand = match (old, ws.pose_memo) {
+            // The previous refinement from this very pose was rejected: start where it
+            // ended (the same optimum, reached in one pass instead of several).
+            (Some(p), Some((from, to))) if from == p => to,
+            (Some(p), _) => p,
+            (None, _) => pose::init_scaled_orthographic(&ws.pts, input.image, input.weights, &input.intrinsics)?,
         };
         pose::refine_perspective(
             &ws.pts,
@@ -594,6 +598,7 @@ impl Fitter {
             None => {
                 self.set_depth(input, &cand, &ws.pts, &mut state.depth);
                 state.pose = Some(cand);
+                ws.pose_memo = None;
             }
             Some(old_pose) => {
                 let before = self.data_cost(input, &old_pose, &state.depth, &ws.pts);
@@ -602,8 +607,10 @@ impl Fitter {
                 let after = self.data_cost(input, &cand, &state.depth, &ws.pts);
                 if after <= before {
                     state.pose = Some(cand);
+                    ws.pose_memo = None;
                 } else {
                     state.depth.copy_from_slice(&ws.depth_backup);
+                    ws.pose_memo = Some((old_pose, cand));
                 }
             }
         }
