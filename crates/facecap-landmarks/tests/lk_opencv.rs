@@ -5,10 +5,12 @@
 //! window 21, maxLevel 3. Frames are decoded with the same ffmpeg command as the
 //! script. Skips when the shared data or ffmpeg is absent.
 
+mod lk_common;
+
 use std::path::Path;
 use std::process::Command;
 
-use facecap_landmarks::lk::{LkParams, LkWorkspace, PyramidLk, TrackStatus};
+use facecap_landmarks::lk::{LkParams, LkWorkspace, PyramidLk};
 use image::GrayImage;
 use nalgebra::Point2;
 use serde::Deserialize;
@@ -57,23 +59,23 @@ fn decode_gray(path: &Path, w: u32, h: u32, n: usize) -> Option<Vec<GrayImage>> 
     )
 }
 
-#[test]
-fn matches_opencv_calc_optical_flow_pyr_lk() {
+/// Reads the fixture and calls `f(prev, next, pair)` for every frame pair of every clip
+/// whose video is present (checking the decoded frames against the fixture's byte sums);
+/// returns how many clips ran (0: shared data absent, SKIP printed).
+fn for_each_pair(test: &str, mut f: impl FnMut(&GrayImage, &GrayImage, &Pair)) -> usize {
     let text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../testdata/opencv_lk/fixture.json"
     ))
     .unwrap();
     let fx: Fixture = serde_json::from_str(&text).unwrap();
-    let lk = PyramidLk::new(LkParams::default()).unwrap();
-    let mut ws = LkWorkspace::new(&lk);
-    let (mut diffs, mut agree, mut total, mut clips_run) = (Vec::new(), 0usize, 0usize, 0);
+    let mut clips_run = 0;
     for clip in &fx.clips {
-        let Some(path) = facecap_core::paths::shared_data_file("lk_opencv", &clip.clip) else {
+        let Some(path) = facecap_core::paths::shared_data_file(test, &clip.clip) else {
             continue;
         };
         let Some(frames) = decode_gray(&path, clip.width, clip.height, fx.n_frames_decoded) else {
-            eprintln!("SKIP: lk_opencv: ffmpeg could not decode {}", clip.clip);
+            eprintln!("SKIP: {test}: ffmpeg could not decode {}", clip.clip);
             continue;
         };
         clips_run += 1;
@@ -87,27 +89,32 @@ fn matches_opencv_calc_optical_flow_pyr_lk() {
                 pair.frame
             );
             assert_eq!(sum(b), pair.byte_sum_next);
-            ws.reset();
-            ws.push_frame(a).unwrap();
-            ws.push_frame(b).unwrap();
-            let pts: Vec<Point2<f64>> = pair.prev.iter().map(|p| Point2::new(p[0], p[1])).collect();
-            let mut next = vec![Point2::origin(); pts.len()];
-            let mut st = vec![TrackStatus::Tracked; pts.len()];
-            let mut err = vec![0.0; pts.len()];
-            lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
-            for i in 0..pts.len() {
-                let cv_ok = pair.status[i] == 1;
-                total += 1;
-                if cv_ok == st[i].is_tracked() {
-                    agree += 1;
-                }
-                if cv_ok && st[i].is_tracked() {
-                    let d = ((next[i].x - pair.next[i][0]).powi(2) + (next[i].y - pair.next[i][1]).powi(2)).sqrt();
-                    diffs.push(d);
-                }
-            }
+            f(a, b, pair);
         }
     }
+    clips_run
+}
+
+#[test]
+fn matches_opencv_calc_optical_flow_pyr_lk() {
+    let lk = PyramidLk::new(LkParams::default()).unwrap();
+    let mut ws = LkWorkspace::new(&lk);
+    let (mut diffs, mut agree, mut total) = (Vec::new(), 0usize, 0usize);
+    let clips_run = for_each_pair("lk_opencv", |a, b, pair| {
+        let pts: Vec<Point2<f64>> = pair.prev.iter().map(|p| Point2::new(p[0], p[1])).collect();
+        let ours = lk_common::track_ours(&lk, &mut ws, a, b, &pts);
+        for i in 0..pts.len() {
+            let cv_ok = pair.status[i] == 1;
+            total += 1;
+            if cv_ok == ours.status[i].is_tracked() {
+                agree += 1;
+            }
+            if cv_ok && ours.status[i].is_tracked() {
+                let q = ours.next[i];
+                diffs.push(((q.x - pair.next[i][0]).powi(2) + (q.y - pair.next[i][1]).powi(2)).sqrt());
+            }
+        }
+    });
     if clips_run == 0 {
         return;
     }
@@ -133,57 +140,24 @@ fn matches_opencv_calc_optical_flow_pyr_lk() {
 /// 3 levels above the base, both with their default stopping rules.
 #[test]
 fn agrees_with_the_optical_flow_lk_crate_on_real_frames() {
-    let text = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../testdata/opencv_lk/fixture.json"
-    ))
-    .unwrap();
-    let fx: Fixture = serde_json::from_str(&text).unwrap();
     let params = LkParams::default();
     let lk = PyramidLk::new(params).unwrap();
     let mut ws = LkWorkspace::new(&lk);
-    let theirs_params = optical_flow_lk::TrackParams {
-        window_size: params.window,
-        max_iterations: params.max_iterations,
-        min_eigen_threshold: optical_flow_lk::DEFAULT_MIN_EIGEN_THRESHOLD,
-    };
-    let (mut diffs, mut agree, mut total, mut clips_run) = (Vec::new(), 0usize, 0usize, 0);
-    for clip in &fx.clips {
-        let Some(path) = facecap_core::paths::shared_data_file("lk_crate_oracle", &clip.clip) else {
-            continue;
-        };
-        let Some(frames) = decode_gray(&path, clip.width, clip.height, fx.n_frames_decoded) else {
-            eprintln!("SKIP: lk_crate_oracle: ffmpeg could not decode {}", clip.clip);
-            continue;
-        };
-        clips_run += 1;
-        for pair in &clip.pairs {
-            let (a, b) = (&frames[pair.frame], &frames[pair.frame + 1]);
-            ws.reset();
-            ws.push_frame(a).unwrap();
-            ws.push_frame(b).unwrap();
-            let pts: Vec<Point2<f64>> = pair.prev.iter().map(|p| Point2::new(p[0], p[1])).collect();
-            let mut next = vec![Point2::origin(); pts.len()];
-            let mut st = vec![TrackStatus::Tracked; pts.len()];
-            let mut err = vec![0.0; pts.len()];
-            lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
-            let pa = optical_flow_lk::build_pyramid(a, params.max_level + 1);
-            let pb = optical_flow_lk::build_pyramid(b, params.max_level + 1);
-            let start: Vec<(f32, f32)> = pts.iter().map(|p| (p.x as f32, p.y as f32)).collect();
-            let theirs = optical_flow_lk::calc_optical_flow_ex(&pa, &pb, &start, None, theirs_params);
-            for i in 0..pts.len() {
-                let theirs_ok = theirs[i].status == optical_flow_lk::TrackStatus::Tracked;
-                total += 1;
-                if theirs_ok == st[i].is_tracked() {
-                    agree += 1;
-                }
-                if theirs_ok && st[i].is_tracked() {
-                    let (tx, ty) = theirs[i].pos;
-                    diffs.push(((next[i].x - f64::from(tx)).powi(2) + (next[i].y - f64::from(ty)).powi(2)).sqrt());
-                }
+    let (mut diffs, mut agree, mut total) = (Vec::new(), 0usize, 0usize);
+    let clips_run = for_each_pair("lk_crate_oracle", |a, b, pair| {
+        let pts: Vec<Point2<f64>> = pair.prev.iter().map(|p| Point2::new(p[0], p[1])).collect();
+        let ours = lk_common::track_ours(&lk, &mut ws, a, b, &pts);
+        let theirs = lk_common::track_crate(&params, a, b, &pts);
+        for ((t, st), q) in theirs.iter().zip(&ours.status).zip(&ours.next) {
+            total += 1;
+            if t.is_some() == st.is_tracked() {
+                agree += 1;
+            }
+            if let (Some(t), true) = (t, st.is_tracked()) {
+                diffs.push((q - t).norm());
             }
         }
-    }
+    });
     if clips_run == 0 {
         return;
     }

@@ -3,6 +3,8 @@
 //! known sub-pixel shifts; pyramid and gradient kernels vs their direct formulas;
 //! parameter validation; sequential vs rayon identity.
 
+mod lk_common;
+
 use facecap_landmarks::lk::{reference, LkParams, LkWorkspace, Par, PyramidLk, TrackStatus};
 use image::GrayImage;
 use nalgebra::Point2;
@@ -134,16 +136,10 @@ fn fast_and_reference_recover_known_subpixel_shifts() {
         let pts: Vec<Point2<f64>> = (0..8)
             .map(|_| Point2::new(rng.random_range(30.0..130.0), rng.random_range(30.0..98.0)))
             .collect();
-        ws.reset();
-        ws.push_frame(&a).unwrap();
-        ws.push_frame(&b).unwrap();
-        let mut next = vec![Point2::origin(); pts.len()];
-        let mut st = vec![TrackStatus::Tracked; pts.len()];
-        let mut err = vec![0.0; pts.len()];
-        let rep = lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
-        assert_eq!(rep.tracked, pts.len());
+        let ours = lk_common::track_ours(&lk, &mut ws, &a, &b, &pts);
+        assert_eq!(ours.report.tracked, pts.len());
         let refs = reference::track(&a, &b, &params, &pts);
-        for ((p, q), (r, rs)) in pts.iter().zip(&next).zip(&refs) {
+        for ((p, q), (r, rs)) in pts.iter().zip(&ours.next).zip(&refs) {
             assert_eq!(*rs, TrackStatus::Tracked);
             let truth = Point2::new(p.x + sx, p.y + sy);
             worst_fast = worst_fast.max((q - truth).norm());
@@ -364,11 +360,6 @@ fn agrees_with_the_optical_flow_lk_crate_on_known_shifts() {
     let params = LkParams::default();
     let lk = PyramidLk::new(params).unwrap();
     let mut ws = LkWorkspace::new(&lk);
-    let theirs_params = optical_flow_lk::TrackParams {
-        window_size: params.window,
-        max_iterations: params.max_iterations,
-        min_eigen_threshold: optical_flow_lk::DEFAULT_MIN_EIGEN_THRESHOLD,
-    };
     let (mut ours_err, mut theirs_err, mut diff) = (Vec::new(), Vec::new(), Vec::new());
     for _case in 0..CASES {
         let tex = Texture::sharp(&mut rng);
@@ -378,29 +369,19 @@ fn agrees_with_the_optical_flow_lk_crate_on_known_shifts() {
         let pts: Vec<Point2<f64>> = (0..8)
             .map(|_| Point2::new(rng.random_range(40.0..152.0), rng.random_range(40.0..120.0)))
             .collect();
-        ws.reset();
-        ws.push_frame(&a).unwrap();
-        ws.push_frame(&b).unwrap();
-        let mut next = vec![Point2::origin(); pts.len()];
-        let mut st = vec![TrackStatus::Tracked; pts.len()];
-        let mut err = vec![0.0; pts.len()];
-        lk.track_into(&ws, &pts, &mut next, &mut st, &mut err).unwrap();
-        let pa = optical_flow_lk::build_pyramid(&a, params.max_level + 1);
-        let pb = optical_flow_lk::build_pyramid(&b, params.max_level + 1);
-        let start: Vec<(f32, f32)> = pts.iter().map(|p| (p.x as f32, p.y as f32)).collect();
-        let theirs = optical_flow_lk::calc_optical_flow_ex(&pa, &pb, &start, None, theirs_params);
+        let ours = lk_common::track_ours(&lk, &mut ws, &a, &b, &pts);
+        let theirs = lk_common::track_crate(&params, &a, &b, &pts);
         for (i, p) in pts.iter().enumerate() {
-            assert_eq!(st[i], TrackStatus::Tracked, "ours lost point {i} of a textured pair");
             assert_eq!(
-                theirs[i].status,
-                optical_flow_lk::TrackStatus::Tracked,
-                "the crate lost point {i} of a textured pair"
+                ours.status[i],
+                TrackStatus::Tracked,
+                "ours lost point {i} of a textured pair"
             );
+            let t = theirs[i].unwrap_or_else(|| panic!("the crate lost point {i} of a textured pair"));
             let truth = Point2::new(p.x + sx, p.y + sy);
-            let t = Point2::new(f64::from(theirs[i].pos.0), f64::from(theirs[i].pos.1));
-            ours_err.push((next[i] - truth).norm());
+            ours_err.push((ours.next[i] - truth).norm());
             theirs_err.push((t - truth).norm());
-            diff.push((next[i] - t).norm());
+            diff.push((ours.next[i] - t).norm());
         }
     }
     for v in [&mut ours_err, &mut theirs_err, &mut diff] {
