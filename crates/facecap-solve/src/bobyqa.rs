@@ -136,6 +136,10 @@ pub struct Bobyqa {
     /// and the Frobenius test); valid while `yx_fresh`.
     yx: Vec<f64>,
     yx_fresh: bool,
+    /// Diagonal of `Omega = Z Z^T` (used by the KNEW choice); valid while `hdiag_fresh`
+    /// (ZMAT unchanged since it was formed).
+    hdiag: Vec<f64>,
+    hdiag_fresh: bool,
     /// `(npt + n) x n`, row-major.
     bmat: Vec<f64>,
     /// `npt x (npt - n - 1)`, column-major (column `jj` is `zmat[jj*npt..(jj+1)*npt]`).
@@ -696,6 +700,8 @@ impl Bobyqa {
             hw: z(npt * n),
             yx: z(npt),
             yx_fresh: false,
+            hdiag: z(npt),
+            hdiag_fresh: false,
             bmat: z(ndim * n),
             zmat: z(npt * nptm),
             sl: z(n),
@@ -865,6 +871,7 @@ impl Bobyqa {
         self.pq.fill(0.0);
         self.hfull_fresh = false;
         self.zmat.fill(0.0);
+        self.hdiag_fresh = false;
         self.gopt.fill(0.0);
         let mut kopt = 0usize;
         let mut fbeg = 0.0;
@@ -1467,13 +1474,15 @@ impl Bobyqa {
     ) -> (usize, f64, bool) {
         let (n, npt) = (self.n, self.npt);
         let nptm = npt - n - 1;
-        // hdiag in wk3
-        let hdiag = &mut self.wk3[..npt];
-        hdiag.fill(0.0);
-        for zc in self.zmat[..npt * nptm].chunks_exact(npt) {
-            for (h, z) in hdiag.iter_mut().zip(zc) {
-                *h += z * z;
+        if !self.hdiag_fresh {
+            let hdiag = &mut self.hdiag[..npt];
+            hdiag.fill(0.0);
+            for zc in self.zmat[..npt * nptm].chunks_exact(npt) {
+                for (h, z) in hdiag.iter_mut().zip(zc) {
+                    *h += z * z;
+                }
             }
+            self.hdiag_fresh = true;
         }
         let delsq = delta * delta;
         let mut scaden = 0.0;
@@ -1481,7 +1490,7 @@ impl Bobyqa {
         let mut knew = NONE;
         let mut denom = 0.0;
         let centre: &[f64] = if from_new { &self.xnew } else { &self.xopt };
-        let (hdiag, vlag) = (&self.wk3[..npt], &self.vlag[..npt]);
+        let (hdiag, vlag) = (&self.hdiag[..npt], &self.vlag[..npt]);
         for (k, row) in self.xpt[..npt * n].chunks_exact(n).enumerate() {
             if !from_new && k == kopt {
                 continue;
@@ -1603,6 +1612,7 @@ impl Bobyqa {
     fn update<S: Simd>(&mut self, simd: S, beta: f64, denom: f64, knew: usize) {
         let (n, npt) = (self.n, self.npt);
         let nptm = npt - n - 1;
+        self.hdiag_fresh = false;
         let zmax = abs_max(simd, &self.zmat);
         let ztest = 1.0e-20 * zmax;
         // Givens rotations zeroing row knew of Z except its first column.
