@@ -136,6 +136,10 @@ pub struct Bobyqa {
     /// and the Frobenius test); valid while `yx_fresh`.
     yx: Vec<f64>,
     yx_fresh: bool,
+    /// Diagonal of `Omega = Z Z^T` (used by the KNEW choice); valid while `hdiag_fresh`
+    /// (ZMAT unchanged since it was formed).
+    hdiag: Vec<f64>,
+    hdiag_fresh: bool,
     /// `(npt + n) x n`, row-major.
     bmat: Vec<f64>,
     /// `npt x (npt - n - 1)`, column-major (column `jj` is `zmat[jj*npt..(jj+1)*npt]`).
@@ -255,23 +259,26 @@ fn dist_sq<S: Simd>(simd: S, a: &[f64], b: &[f64]) -> f64 {
     s
 }
 
-/// `(g . (a - b), |a - b|^2)` (equal lengths) in SIMD registers.
+/// `(g . (a - b), |a - b|^2)` (equal lengths) in SIMD registers; writes `a - b` into `out`.
 #[inline(always)]
-fn dderiv_dist<S: Simd>(simd: S, a: &[f64], b: &[f64], g: &[f64]) -> (f64, f64) {
-    debug_assert!(a.len() == b.len() && a.len() == g.len());
+fn dderiv_dist<S: Simd>(simd: S, a: &[f64], b: &[f64], g: &[f64], out: &mut [f64]) -> (f64, f64) {
+    debug_assert!(a.len() == b.len() && a.len() == g.len() && a.len() == out.len());
     let (ah, at) = S::as_simd_f64s(a);
     let (bh, bt) = S::as_simd_f64s(b);
     let (gh, gt) = S::as_simd_f64s(g);
+    let (oh, ot) = S::as_mut_simd_f64s(out);
     let mut acc_g = simd.splat_f64s(0.0);
     let mut acc_d = simd.splat_f64s(0.0);
-    for ((x, y), w) in ah.iter().zip(bh).zip(gh) {
+    for (((x, y), w), o) in ah.iter().zip(bh).zip(gh).zip(oh.iter_mut()) {
         let d = simd.sub_f64s(*x, *y);
+        *o = d;
         acc_g = simd.mul_add_e_f64s(*w, d, acc_g);
         acc_d = simd.mul_add_e_f64s(d, d, acc_d);
     }
     let (mut sg, mut sd) = (simd.reduce_sum_f64s(acc_g), simd.reduce_sum_f64s(acc_d));
-    for ((x, y), w) in at.iter().zip(bt).zip(gt) {
+    for (((x, y), w), o) in at.iter().zip(bt).zip(gt).zip(ot.iter_mut()) {
         let d = x - y;
+        *o = d;
         sg += w * d;
         sd += d * d;
     }
@@ -447,6 +454,163 @@ fn hess_mul<S: Simd>(simd: S, n: usize, hq: &[f64], pq: &[f64], xpt: &[f64], s: 
     }
 }
 
+// TRSBOX kernels. `xbdi` marks the variables fixed at a bound (`xbdi_i != 0`); sums run over
+// the free variables only (a fixed lane contributes +0).
+
+/// `(sum_{free} a_i b_i, sum_{free} a_i c_i, sum_{free} d_i c_i)` in one pass.
+#[inline(always)]
+fn free_dots3<S: Simd>(simd: S, xbdi: &[f64], a: &[f64], b: &[f64], c: &[f64], d: &[f64]) -> (f64, f64, f64) {
+    let m = xbdi.len();
+    debug_assert!(a.len() == m && b.len() == m && c.len() == m && d.len() == m);
+    let (xh, xt) = S::as_simd_f64s(xbdi);
+    let (ah, at) = S::as_simd_f64s(a);
+    let (bh, bt) = S::as_simd_f64s(b);
+    let (ch, ct) = S::as_simd_f64s(c);
+    let (dh, dt) = S::as_simd_f64s(d);
+    let zero = simd.splat_f64s(0.0);
+    let (mut s0, mut s1, mut s2) = (zero, zero, zero);
+    for ((((x, a), b), c), d) in xh.iter().zip(ah).zip(bh).zip(ch).zip(dh) {
+        let free = simd.equal_f64s(*x, zero);
+        let a = simd.select_f64s(free, *a, zero);
+        let d = simd.select_f64s(free, *d, zero);
+        s0 = simd.mul_add_e_f64s(a, *b, s0);
+        s1 = simd.mul_add_e_f64s(a, *c, s1);
+        s2 = simd.mul_add_e_f64s(d, *c, s2);
+    }
+    let (mut r0, mut r1, mut r2) = (
+        simd.reduce_sum_f64s(s0),
+        simd.reduce_sum_f64s(s1),
+        simd.reduce_sum_f64s(s2),
+    );
+    for ((((x, a), b), c), d) in xt.iter().zip(at).zip(bt).zip(ct).zip(dt) {
+        if *x == 0.0 {
+            r0 += a * b;
+            r1 += a * c;
+            r2 += d * c;
+        }
+    }
+    (r0, r1, r2)
+}
+
+/// Conjugate-gradient direction: `s_i = beta s_i - g_i` for the free variables, 0 for the
+/// fixed ones; returns `|s|^2`.
+#[inline(always)]
+fn cg_direction<S: Simd>(simd: S, xbdi: &[f64], beta: f64, g: &[f64], s: &mut [f64]) -> f64 {
+    debug_assert!(g.len() == xbdi.len() && s.len() == xbdi.len());
+    let (xh, xt) = S::as_simd_f64s(xbdi);
+    let (gh, gt) = S::as_simd_f64s(g);
+    let (sh, st) = S::as_mut_simd_f64s(s);
+    let zero = simd.splat_f64s(0.0);
+    let bv = simd.splat_f64s(beta);
+    let mut acc = zero;
+    for ((x, g), sv) in xh.iter().zip(gh).zip(sh.iter_mut()) {
+        let v = simd.sub_f64s(simd.mul_f64s(bv, *sv), *g);
+        let v = simd.select_f64s(simd.equal_f64s(*x, zero), v, zero);
+        *sv = v;
+        acc = simd.mul_add_e_f64s(v, v, acc);
+    }
+    let mut sq = simd.reduce_sum_f64s(acc);
+    for ((x, g), sv) in xt.iter().zip(gt).zip(st.iter_mut()) {
+        *sv = if *x == 0.0 { beta * *sv - g } else { 0.0 };
+        sq += *sv * *sv;
+    }
+    sq
+}
+
+/// Step of length `a` along `s`: `g += a hs`, `d += a s`; returns `sum_{free} g_i^2`.
+#[inline(always)]
+fn cg_step<S: Simd>(simd: S, xbdi: &[f64], a: f64, hs: &[f64], s: &[f64], g: &mut [f64], d: &mut [f64]) -> f64 {
+    let m = xbdi.len();
+    debug_assert!(hs.len() == m && s.len() == m && g.len() == m && d.len() == m);
+    let (xh, xt) = S::as_simd_f64s(xbdi);
+    let (hh, ht) = S::as_simd_f64s(hs);
+    let (sh, st) = S::as_simd_f64s(s);
+    let (gh, gt) = S::as_mut_simd_f64s(g);
+    let (dh, dt) = S::as_mut_simd_f64s(d);
+    let zero = simd.splat_f64s(0.0);
+    let av = simd.splat_f64s(a);
+    let mut acc = zero;
+    for ((((x, h), sv), gv), dv) in xh.iter().zip(hh).zip(sh).zip(gh.iter_mut()).zip(dh.iter_mut()) {
+        *gv = simd.mul_add_e_f64s(av, *h, *gv);
+        *dv = simd.mul_add_e_f64s(av, *sv, *dv);
+        let gf = simd.select_f64s(simd.equal_f64s(*x, zero), *gv, zero);
+        acc = simd.mul_add_e_f64s(gf, gf, acc);
+    }
+    let mut sq = simd.reduce_sum_f64s(acc);
+    for ((((x, h), sv), gv), dv) in xt.iter().zip(ht).zip(st).zip(gt.iter_mut()).zip(dt.iter_mut()) {
+        *gv += a * h;
+        *dv += a * sv;
+        if *x == 0.0 {
+            sq += *gv * *gv;
+        }
+    }
+    sq
+}
+
+/// Rotation of TRSBOX's alternative iteration by the angle with cosine `c` and sine `t`:
+/// `g += (c - 1) hred + t hs`, `hred <- c hred + t hs`, and for the free variables
+/// `d <- c d + t s`; returns `(sum_{free} d_i g_i, sum_{free} g_i^2)` after the change.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn cg_rotate<S: Simd>(
+    simd: S,
+    xbdi: &[f64],
+    c: f64,
+    t: f64,
+    hs: &[f64],
+    s: &[f64],
+    hred: &mut [f64],
+    g: &mut [f64],
+    d: &mut [f64],
+) -> (f64, f64) {
+    let m = xbdi.len();
+    debug_assert!(hs.len() == m && s.len() == m && hred.len() == m && g.len() == m && d.len() == m);
+    let (xh, xt) = S::as_simd_f64s(xbdi);
+    let (hh, ht) = S::as_simd_f64s(hs);
+    let (sh, st) = S::as_simd_f64s(s);
+    let (rh, rt) = S::as_mut_simd_f64s(hred);
+    let (gh, gt) = S::as_mut_simd_f64s(g);
+    let (dh, dt) = S::as_mut_simd_f64s(d);
+    let zero = simd.splat_f64s(0.0);
+    let (cm1, cv, tv) = (simd.splat_f64s(c - 1.0), simd.splat_f64s(c), simd.splat_f64s(t));
+    let (mut a0, mut a1) = (zero, zero);
+    for (((((x, h), sv), rv), gv), dv) in xh
+        .iter()
+        .zip(hh)
+        .zip(sh)
+        .zip(rh.iter_mut())
+        .zip(gh.iter_mut())
+        .zip(dh.iter_mut())
+    {
+        *gv = simd.mul_add_e_f64s(cm1, *rv, simd.mul_add_e_f64s(tv, *h, *gv));
+        let free = simd.equal_f64s(*x, zero);
+        let dn = simd.mul_add_e_f64s(cv, *dv, simd.mul_f64s(tv, *sv));
+        *dv = simd.select_f64s(free, dn, *dv);
+        let gf = simd.select_f64s(free, *gv, zero);
+        a0 = simd.mul_add_e_f64s(*dv, gf, a0);
+        a1 = simd.mul_add_e_f64s(gf, gf, a1);
+        *rv = simd.mul_add_e_f64s(cv, *rv, simd.mul_f64s(tv, *h));
+    }
+    let (mut dg, mut gg) = (simd.reduce_sum_f64s(a0), simd.reduce_sum_f64s(a1));
+    for (((((x, h), sv), rv), gv), dv) in xt
+        .iter()
+        .zip(ht)
+        .zip(st)
+        .zip(rt.iter_mut())
+        .zip(gt.iter_mut())
+        .zip(dt.iter_mut())
+    {
+        *gv += (c - 1.0) * *rv + t * h;
+        if *x == 0.0 {
+            *dv = c * *dv + t * sv;
+            dg += *dv * *gv;
+            gg += *gv * *gv;
+        }
+        *rv = c * *rv + t * h;
+    }
+    (dg, gg)
+}
+
 /// Objective evaluation with the NaN check.
 fn evaluate(f: &mut impl FnMut(&[f64]) -> f64, x: &[f64], nf: usize) -> Result<f64> {
     let v = f(x);
@@ -536,6 +700,8 @@ impl Bobyqa {
             hw: z(npt * n),
             yx: z(npt),
             yx_fresh: false,
+            hdiag: z(npt),
+            hdiag_fresh: false,
             bmat: z(ndim * n),
             zmat: z(npt * nptm),
             sl: z(n),
@@ -705,6 +871,7 @@ impl Bobyqa {
         self.pq.fill(0.0);
         self.hfull_fresh = false;
         self.zmat.fill(0.0);
+        self.hdiag_fresh = false;
         self.gopt.fill(0.0);
         let mut kopt = 0usize;
         let mut fbeg = 0.0;
@@ -1307,13 +1474,15 @@ impl Bobyqa {
     ) -> (usize, f64, bool) {
         let (n, npt) = (self.n, self.npt);
         let nptm = npt - n - 1;
-        // hdiag in wk3
-        let hdiag = &mut self.wk3[..npt];
-        hdiag.fill(0.0);
-        for zc in self.zmat[..npt * nptm].chunks_exact(npt) {
-            for (h, z) in hdiag.iter_mut().zip(zc) {
-                *h += z * z;
+        if !self.hdiag_fresh {
+            let hdiag = &mut self.hdiag[..npt];
+            hdiag.fill(0.0);
+            for zc in self.zmat[..npt * nptm].chunks_exact(npt) {
+                for (h, z) in hdiag.iter_mut().zip(zc) {
+                    *h += z * z;
+                }
             }
+            self.hdiag_fresh = true;
         }
         let delsq = delta * delta;
         let mut scaden = 0.0;
@@ -1321,7 +1490,7 @@ impl Bobyqa {
         let mut knew = NONE;
         let mut denom = 0.0;
         let centre: &[f64] = if from_new { &self.xnew } else { &self.xopt };
-        let (hdiag, vlag) = (&self.wk3[..npt], &self.vlag[..npt]);
+        let (hdiag, vlag) = (&self.hdiag[..npt], &self.vlag[..npt]);
         for (k, row) in self.xpt[..npt * n].chunks_exact(n).enumerate() {
             if !from_new && k == kopt {
                 continue;
@@ -1443,6 +1612,7 @@ impl Bobyqa {
     fn update<S: Simd>(&mut self, simd: S, beta: f64, denom: f64, knew: usize) {
         let (n, npt) = (self.n, self.npt);
         let nptm = npt - n - 1;
+        self.hdiag_fresh = false;
         let zmax = abs_max(simd, &self.zmat);
         let ztest = 1.0e-20 * zmax;
         // Givens rotations zeroing row knew of Z except its first column.
@@ -1519,22 +1689,25 @@ impl Bobyqa {
         let mut ksav = knew;
         let mut stpsav = 0.0;
         let mut ibdsav: isize = 0;
+        // the bounds relative to xopt (wn, wn2), once per call; y_k - xopt in wa
+        for i in 0..n {
+            self.wn[i] = self.sl[i] - self.xopt[i];
+            self.wn2[i] = self.su[i] - self.xopt[i];
+        }
         for k in 0..npt {
             if k == kopt {
                 continue;
             }
             let row = &self.xpt[k * n..(k + 1) * n];
-            let (dderiv, distsq) = dderiv_dist(simd, row, &self.xopt, &self.glag);
+            let (dderiv, distsq) = dderiv_dist(simd, row, &self.xopt, &self.glag, &mut self.wa);
             let mut subd = adelt / distsq.sqrt();
             let mut slbd = -subd;
             let mut ilbd: isize = 0;
             let mut iubd: isize = 0;
             let sumin = subd.min(1.0);
-            for i in 0..n {
-                let t = row[i] - self.xopt[i];
+            let (rel, los, his) = (&self.wa[..n], &self.wn[..n], &self.wn2[..n]);
+            for (i, ((&t, &lo), &hi)) in rel.iter().zip(los).zip(his).enumerate() {
                 let ii = i as isize + 1;
-                let lo = self.sl[i] - self.xopt[i];
-                let hi = self.su[i] - self.xopt[i];
                 if t > 0.0 {
                     if slbd * t < lo {
                         slbd = lo / t;
@@ -1794,17 +1967,7 @@ impl Bobyqa {
                     st = T::L30;
                 }
                 T::L30 => {
-                    stepsq = 0.0;
-                    for i in 0..n {
-                        if xbdi[i] != 0.0 {
-                            s[i] = 0.0;
-                        } else if beta == 0.0 {
-                            s[i] = -gnew[i];
-                        } else {
-                            s[i] = beta * s[i] - gnew[i];
-                        }
-                        stepsq += s[i] * s[i];
-                    }
+                    stepsq = cg_direction(simd, &xbdi[..n], beta, &gnew[..n], &mut s[..n]);
                     if stepsq == 0.0 {
                         st = T::L190;
                         continue;
@@ -1820,16 +1983,9 @@ impl Bobyqa {
                     };
                 }
                 T::L50 => {
-                    let mut resid = delsq;
-                    let mut ds = 0.0;
-                    let mut shs = 0.0;
-                    for i in 0..n {
-                        if xbdi[i] == 0.0 {
-                            resid -= d[i] * d[i];
-                            ds += s[i] * d[i];
-                            shs += s[i] * hs[i];
-                        }
-                    }
+                    // s is zero on the fixed variables
+                    let (dd, ds, shs) = free_dots3(simd, &xbdi[..n], &d[..n], &d[..n], &s[..n], &hs[..n]);
+                    let resid = delsq - dd;
                     if resid <= 0.0 {
                         st = T::L90;
                         continue;
@@ -1870,14 +2026,7 @@ impl Bobyqa {
                             }
                         }
                         ggsav = gredsq;
-                        gredsq = 0.0;
-                        for i in 0..n {
-                            gnew[i] += stplen * hs[i];
-                            if xbdi[i] == 0.0 {
-                                gredsq += gnew[i] * gnew[i];
-                            }
-                            d[i] += stplen * s[i];
-                        }
+                        gredsq = cg_step(simd, &xbdi[..n], stplen, &hs[..n], &s[..n], &mut gnew[..n], &mut d[..n]);
                         sdec = (stplen * (ggsav - 0.5 * stplen * shs)).max(0.0);
                         qred += sdec;
                     }
@@ -1908,18 +2057,9 @@ impl Bobyqa {
                         st = T::L190;
                         continue;
                     }
-                    dredsq = 0.0;
-                    dredg = 0.0;
-                    gredsq = 0.0;
+                    (dredsq, dredg, gredsq) = free_dots3(simd, &xbdi[..n], &d[..n], &d[..n], &gnew[..n], &gnew[..n]);
                     for i in 0..n {
-                        if xbdi[i] == 0.0 {
-                            dredsq += d[i] * d[i];
-                            dredg += d[i] * gnew[i];
-                            gredsq += gnew[i] * gnew[i];
-                            s[i] = d[i];
-                        } else {
-                            s[i] = 0.0;
-                        }
+                        s[i] = if xbdi[i] == 0.0 { d[i] } else { 0.0 };
                     }
                     itcsav = iterc;
                     st = T::L210;
@@ -1982,16 +2122,7 @@ impl Bobyqa {
                     st = if fixed { T::L100 } else { T::L210 };
                 }
                 T::L150 => {
-                    let mut shs = 0.0;
-                    let mut dhs = 0.0;
-                    let mut dhd = 0.0;
-                    for i in 0..n {
-                        if xbdi[i] == 0.0 {
-                            shs += s[i] * hs[i];
-                            dhs += d[i] * hs[i];
-                            dhd += d[i] * hred[i];
-                        }
-                    }
+                    let (dhd, dhs, shs) = free_dots3(simd, &xbdi[..n], &d[..n], &hred[..n], &hs[..n], &s[..n]);
                     let mut redmax = 0.0;
                     let mut isav = 0usize;
                     let mut redsav = 0.0;
@@ -2029,17 +2160,17 @@ impl Bobyqa {
                         st = T::L190;
                         continue;
                     }
-                    dredg = 0.0;
-                    gredsq = 0.0;
-                    for i in 0..n {
-                        gnew[i] += (cth - 1.0) * hred[i] + sth * hs[i];
-                        if xbdi[i] == 0.0 {
-                            d[i] = cth * d[i] + sth * s[i];
-                            dredg += d[i] * gnew[i];
-                            gredsq += gnew[i] * gnew[i];
-                        }
-                        hred[i] = cth * hred[i] + sth * hs[i];
-                    }
+                    (dredg, gredsq) = cg_rotate(
+                        simd,
+                        &xbdi[..n],
+                        cth,
+                        sth,
+                        &hs[..n],
+                        &s[..n],
+                        &mut hred[..n],
+                        &mut gnew[..n],
+                        &mut d[..n],
+                    );
                     qred += sdec;
                     if iact != NONE && isav == iu {
                         nact += 1;
@@ -2122,9 +2253,10 @@ mod tests {
                 check(close(d1, rdot(&a, &c)) && close(d2, rdot(&b, &c)), "dot2", n);
                 let diff: Vec<f64> = a.iter().zip(&b).map(|(p, q)| p - q).collect();
                 check(close(dist_sq(simd, &a, &b), rdot(&diff, &diff)), "dist_sq", n);
-                let (g1, g2) = dderiv_dist(simd, &a, &b, &c);
+                let mut out = vec![0.0; n];
+                let (g1, g2) = dderiv_dist(simd, &a, &b, &c, &mut out);
                 check(
-                    close(g1, rdot(&c, &diff)) && close(g2, rdot(&diff, &diff)),
+                    close(g1, rdot(&c, &diff)) && close(g2, rdot(&diff, &diff)) && out == diff,
                     "dderiv_dist",
                     n,
                 );
@@ -2143,6 +2275,57 @@ mod tests {
                 let rx: Vec<f64> = (0..n).map(|i| 0.6 * a[i] + 0.8 * b[i]).collect();
                 let ryy: Vec<f64> = (0..n).map(|i| 0.6 * b[i] - 0.8 * a[i]).collect();
                 check(all_close(&x1, &rx) && all_close(&y1, &ryy), "givens", n);
+                // TRSBOX kernels (variables 0 and 2 fixed, when present)
+                let (e, f2) = (v(n), v(n));
+                let xb: Vec<f64> = (0..n)
+                    .map(|i| {
+                        if i == 0 {
+                            -1.0
+                        } else if i == 2 {
+                            1.0
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect();
+                let fr = |i: usize| xb[i] == 0.0;
+                let rf = |x: &[f64], y: &[f64]| (0..n).filter(|&i| fr(i)).map(|i| x[i] * y[i]).sum::<f64>();
+                let (r0, r1, r2) = free_dots3(simd, &xb, &a, &b, &c, &e);
+                check(
+                    close(r0, rf(&a, &b)) && close(r1, rf(&a, &c)) && close(r2, rf(&e, &c)),
+                    "free_dots3",
+                    n,
+                );
+                let mut sv = c.clone();
+                let sq = cg_direction(simd, &xb, al, &a, &mut sv);
+                let rs: Vec<f64> = (0..n).map(|i| if fr(i) { al * c[i] - a[i] } else { 0.0 }).collect();
+                check(all_close(&sv, &rs) && close(sq, rdot(&rs, &rs)), "cg_direction", n);
+                let (mut gv, mut dv) = (c.clone(), e.clone());
+                let gg = cg_step(simd, &xb, al, &a, &b, &mut gv, &mut dv);
+                let rg: Vec<f64> = (0..n).map(|i| c[i] + al * a[i]).collect();
+                let rd: Vec<f64> = (0..n).map(|i| e[i] + al * b[i]).collect();
+                check(
+                    all_close(&gv, &rg) && all_close(&dv, &rd) && close(gg, rf(&rg, &rg)),
+                    "cg_step",
+                    n,
+                );
+                let (ct, st) = (0.8, 0.6);
+                let (mut hr, mut gv, mut dv) = (c.clone(), e.clone(), f2.clone());
+                let (dg, gg) = cg_rotate(simd, &xb, ct, st, &a, &b, &mut hr, &mut gv, &mut dv);
+                let rg: Vec<f64> = (0..n).map(|i| e[i] + (ct - 1.0) * c[i] + st * a[i]).collect();
+                let rd: Vec<f64> = (0..n)
+                    .map(|i| if fr(i) { ct * f2[i] + st * b[i] } else { f2[i] })
+                    .collect();
+                let rh: Vec<f64> = (0..n).map(|i| ct * c[i] + st * a[i]).collect();
+                check(
+                    all_close(&gv, &rg)
+                        && all_close(&dv, &rd)
+                        && all_close(&hr, &rh)
+                        && close(dg, rf(&rd, &rg))
+                        && close(gg, rf(&rg, &rg)),
+                    "cg_rotate",
+                    n,
+                );
                 // Hessian build, products
                 let xpt = v(npt * n);
                 let pq = v(npt);
