@@ -6,11 +6,10 @@ use facecap_landmarks::lk::{LkParams, LkReport, LkWorkspace, PyramidLk, TrackSta
 use image::GrayImage;
 use nalgebra::Point2;
 
-/// Our tracked points, statuses, errors and report for `pts` from `a` to `b`.
+/// Our tracked points, statuses and report for `pts` from `a` to `b`.
 pub struct Ours {
     pub next: Vec<Point2<f64>>,
     pub status: Vec<TrackStatus>,
-    pub error: Vec<f64>,
     pub report: LkReport,
 }
 
@@ -23,12 +22,7 @@ pub fn track_ours(lk: &PyramidLk, ws: &mut LkWorkspace, a: &GrayImage, b: &GrayI
     let mut status = vec![TrackStatus::Tracked; pts.len()];
     let mut error = vec![0.0; pts.len()];
     let report = lk.track_into(ws, pts, &mut next, &mut status, &mut error).unwrap();
-    Ours {
-        next,
-        status,
-        error,
-        report,
-    }
+    Ours { next, status, report }
 }
 
 /// The `optical-flow-lk` crate on the same pair: window and levels from `params`
