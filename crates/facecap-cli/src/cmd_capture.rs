@@ -47,8 +47,8 @@ pub struct Args {
     /// Landmark map of `--rig` (JSON: `vertex_by_ibug_0based`, or a list of 68 ids).
     #[arg(long)]
     pub landmark_map: Option<PathBuf>,
-    /// Expression solver.
-    #[arg(long, default_value = "exact", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
+    /// Expression solver (`exact3d`: joint head pose and weights, perspective camera).
+    #[arg(long, default_value = "exact3d", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
     pub solver: String,
     /// Muscle set JSON, or `default` for the built-in 11-muscle set.
     #[arg(long)]
@@ -78,11 +78,16 @@ pub struct Args {
     /// Videos processed at once (default: number of cores).
     #[arg(long)]
     pub jobs: Option<usize>,
-    /// Per-subject neutral calibration: `none`, `auto` (the frame whose face shape is
-    /// closest to the clip's median face shape is taken as the subject's neutral) or
+    /// Per-subject neutral calibration: `auto` (default: the subject's neutral face fitted
+    /// in 3D over many resting frames; with a 2D solver, the frame closest to the clip's
+    /// median face shape), `none`, or
     /// a frame index where the subject's face is at rest. See docs/capture.md.
-    #[arg(long, default_value = "none")]
+    #[arg(long, default_value = "auto")]
     pub neutral: String,
+    /// Solve without the rig's measured default priors (unseen shapes held at 0, ridge by
+    /// observability, exclusive antagonists; see docs/expressions.md). For comparisons.
+    #[arg(long)]
+    pub no_priors: bool,
     /// ffmpeg decoder threads per video (0 = ffmpeg's choice). One thread per video
     /// costs the least CPU per frame; decoding runs beside tracking either way.
     #[arg(long, default_value_t = 1)]
@@ -122,6 +127,8 @@ struct Setup {
     muscles: Option<crate::capture_extras::MuscleSetup>,
     tensor: Option<crate::capture_extras::TensorSetup>,
     neutral: crate::neutral::NeutralChoice,
+    /// Whether the rig's measured default priors are used (3D solver).
+    use_priors: bool,
     args_echo: serde_json::Value,
 }
 
@@ -203,6 +210,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
         "obj": args.obj,
         "neutral": args.neutral,
+        "priors": !args.no_priors,
     });
     Ok(Setup {
         rig_mesh,
@@ -215,6 +223,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         muscles,
         tensor,
         neutral,
+        use_priors: !args.no_priors,
         args_echo,
     })
 }
@@ -480,7 +489,16 @@ fn capture_one(
         Some(c) => c,
         None => Intrinsics::default_for_frame(info.width, info.height)?,
     };
-    let solver = AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?;
+    let priors = setup
+        .use_priors
+        .then(|| facecap_solve::observability::default_priors(&setup.rig));
+    let with_priors = |s: AnySolver| -> anyhow::Result<AnySolver> {
+        Ok(match &priors {
+            Some(p) => s.with_priors(p.clone())?,
+            None => s,
+        })
+    };
+    let solver = with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?;
     let tracker = &setup.tracker;
     let mut tracker_ws = tracker.new_workspace();
     let mut tracker_state = TrackerState::new();
@@ -604,9 +622,20 @@ fn capture_one(
             .iter()
             .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
             .collect();
-        let cal = crate::neutral::calibrate(setup.neutral, &solver, &setup.rig, camera, &tracked_frames)?;
+        let cal = match (setup.neutral, setup.method) {
+            (crate::neutral::NeutralChoice::Auto, Method::Exact3d) => crate::neutral::calibrate_subject(
+                &setup.rig,
+                camera,
+                setup.objective,
+                priors
+                    .as_ref()
+                    .unwrap_or(&facecap_solve::ShapePriors::neutral(setup.rig.num_shapes())),
+                &tracked_frames,
+            )?,
+            _ => crate::neutral::calibrate(setup.neutral, &solver, &setup.rig, camera, &tracked_frames)?,
+        };
         neutral_report = cal.report;
-        let calibrated = AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?;
+        let calibrated = with_priors(AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?)?;
         stage.run(&calibrated, collected)?;
     }
     let SolveStage {
