@@ -30,13 +30,31 @@ fn main() {
             variants.push((format!("kernel_sigma {s}"), IrisParams { kernel_sigma: s, ..d }));
         }
         for t in [0.3, 0.4, 0.6, 0.7] {
-            variants.push((format!("threshold_level {t}"), IrisParams { threshold_level: t, ..d }));
+            variants.push((
+                format!("threshold_level {t}"),
+                IrisParams {
+                    threshold_level: t,
+                    ..d
+                },
+            ));
         }
         for m in [0.0, 0.06, 0.1] {
             variants.push((format!("mask_margin {m}"), IrisParams { mask_margin: m, ..d }));
         }
-        variants.push(("low_percentile 0.01".into(), IrisParams { low_percentile: 0.01, ..d }));
-        variants.push(("high_percentile 0.8".into(), IrisParams { high_percentile: 0.8, ..d }));
+        variants.push((
+            "low_percentile 0.01".into(),
+            IrisParams {
+                low_percentile: 0.01,
+                ..d
+            },
+        ));
+        variants.push((
+            "high_percentile 0.8".into(),
+            IrisParams {
+                high_percentile: 0.8,
+                ..d
+            },
+        ));
         variants.push(("patch_width 32".into(), IrisParams { patch_width: 32, ..d }));
         variants.push(("patch_width 64".into(), IrisParams { patch_width: 64, ..d }));
     }
@@ -53,14 +71,19 @@ fn main() {
         assert_eq!(mp.len(), run.landmarks.len(), "{clip}: frame count");
         for (k, est) in run.estimates.iter().enumerate() {
             for (name, right) in [("right", true), ("left", false)] {
-                stats[k].push((clip.to_string(), run.width, name, eye_stats(est, &run.landmarks, mp, right)));
+                stats[k].push((
+                    clip.to_string(),
+                    run.width,
+                    name,
+                    eye_stats(est, &run.landmarks, mp, right),
+                ));
             }
         }
     }
     for (k, (vname, _)) in variants.iter().enumerate() {
         println!("== {vname}");
         if k == 0 {
-            println!("clip eye | valid/tracked | median px | p90 px | median % width | r_h | r_v | r_h MP-iris | r_v MP-iris | r(u,u_mp) | r(v,v_mp)");
+            println!("clip eye | valid/tracked | median px | p90 px | median % width | r_h | r_v | r_h MP-iris | r_v MP-iris | r(u,u_mp) | r(v,v_mp) | median u-u_mp | median v-v_mp");
         }
         let fmt = |r: Option<f64>| r.map_or("-".to_string(), |r| format!("{r:.2}"));
         let (mut all_px, mut all_rel, mut px480, mut rel480) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -71,7 +94,7 @@ fn main() {
                 p.sort_by(f64::total_cmp);
                 let p90 = p.get(p.len() * 9 / 10).copied().unwrap_or(f64::NAN);
                 println!(
-                    "{clip} {eye} | {}/{} | {:.2} | {:.2} | {:.1} | {} | {} | {} | {} | {:.2} | {:.2}",
+                    "{clip} {eye} | {}/{} | {:.2} | {:.2} | {:.1} | {} | {} | {} | {} | {:.2} | {:.2} | {:+.3} | {:+.3}",
                     s.frames,
                     s.tracked,
                     median(&s.dist_px),
@@ -82,7 +105,9 @@ fn main() {
                     fmt(s.r_h_mp_iris),
                     fmt(s.r_v_mp_iris),
                     s.r_u_iris,
-                    s.r_v_iris
+                    s.r_v_iris,
+                    s.bias_uv[0],
+                    s.bias_uv[1]
                 );
             }
             all_px.extend(&s.dist_px);
@@ -112,7 +137,12 @@ fn main() {
     }
     // gains of gaze_weights, default estimator, pooled over clips and eyes
     let samples: Vec<_> = stats[0].iter().flat_map(|s| s.3.samples.iter().copied()).collect();
-    let dirs = [("look_in", 0usize, 0usize, 1.0), ("look_out", 1, 0, -1.0), ("look_up", 2, 1, -1.0), ("look_down", 3, 1, 1.0)];
+    let dirs = [
+        ("look_in", 0usize, 0usize, 1.0),
+        ("look_out", 1, 0, -1.0),
+        ("look_up", 2, 1, -1.0),
+        ("look_down", 3, 1, 1.0),
+    ];
     for (name, score, axis, sign) in dirs {
         let xy: Vec<(f64, f64)> = samples.iter().map(|(d, s)| (sign * d[axis], s[score])).collect();
         let (g, rms) = fit_gain(&xy);

@@ -36,14 +36,23 @@ fn no_allocation_per_frame_after_warm_up() {
     let frames: Vec<_> = (0..5)
         .map(|k| {
             let u = 0.4 + 0.05 * k as f64;
-            let eyes = gaze_common::face(Point2::new(160.0, 120.0), 30.0 + 5.0 * k as f64, 0.1, 0.22, (u, 0.0), (u, 0.0), 0.12);
+            let eyes = gaze_common::face(
+                Point2::new(160.0, 120.0),
+                30.0 + 5.0 * k as f64,
+                0.1,
+                0.22,
+                (u, 0.0),
+                (u, 0.0),
+                0.12,
+            );
             gaze_common::render(320, 240, &eyes)
         })
         .collect();
     let est = IrisEstimator::new(IrisParams::default()).unwrap();
     let mut ws = est.new_workspace();
     let mut out = IrisFrame::default();
-    est.estimate_into(&frames[0].0, &frames[0].1, &mut ws, &mut out).unwrap();
+    est.estimate_into(&frames[0].0, &frames[0].1, &mut ws, &mut out)
+        .unwrap();
     let before = ALLOCS.load(Ordering::SeqCst);
     let mut valid = 0;
     for (img, lm) in &frames {

@@ -4,28 +4,31 @@
 //! `testdata/gaze/make_fixture.py`). Bounds measured in `docs/gaze.md`. Skips without the
 //! shared data or the models.
 
-mod gaze_common;
-
 #[path = "gaze_common/clips.rs"]
 mod clips;
 
 use clips::{eye_stats, median, read_fixture, run_clip, tracker, CLIPS};
 use facecap_landmarks::gaze::{IrisEstimator, IrisParams};
 
-/// Median iris-centre distance to MediaPipe over the 480x480 clips (d18, d6), px.
-const MAX_MEDIAN_PX_480: f64 = 3.0;
-/// The same over every clip, in eye widths.
-const MAX_MEDIAN_REL: f64 = 0.08;
-/// Mean over clip-eyes (where MediaPipe's signal moves) of the horizontal Pearson r.
-const MIN_MEAN_R_H: f64 = 0.3;
-/// Mean vertical Pearson r.
-const MIN_MEAN_R_V: f64 = 0.3;
-/// Share of tracked eyes with a valid estimate.
+/// Median iris-centre distance to MediaPipe over the 480x480 clips (d18, d6), px
+/// (measured 2.06).
+const MAX_MEDIAN_PX_480: f64 = 2.4;
+/// The same over every clip, in eye widths (measured 0.046).
+const MAX_MEDIAN_REL: f64 = 0.055;
+/// Mean over clip-eyes (where MediaPipe's signal moves) of the horizontal Pearson r
+/// (measured 0.647; MediaPipe's own iris in our eye frame: 0.631).
+const MIN_MEAN_R_H: f64 = 0.58;
+/// Mean vertical Pearson r (measured 0.649; MediaPipe's own iris: 0.450).
+const MIN_MEAN_R_V: f64 = 0.58;
+/// Share of tracked eyes with a valid estimate (measured 0.945: the rest are blinks and
+/// d3's winks).
 const MIN_VALID_SHARE: f64 = 0.9;
 
 #[test]
 fn iris_centres_and_gaze_agree_with_mediapipe_on_shared_clips() {
-    let Some(tracker) = tracker("gaze_mediapipe") else { return };
+    let Some(tracker) = tracker("gaze_mediapipe") else {
+        return;
+    };
     let est = IrisEstimator::new(IrisParams::default()).unwrap();
     let fx = read_fixture();
     let (mut px480, mut rel, mut rh, mut rv) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());

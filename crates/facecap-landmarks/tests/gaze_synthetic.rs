@@ -45,8 +45,17 @@ fn recovers_a_drawn_iris_within_half_a_pixel() {
             let err = (e.centre - spec.iris_px()).norm();
             worst = worst.max(err);
             worst_uv = worst_uv.max((e.u - spec.iris_uv.0).abs().max((e.v - spec.iris_uv.1).abs()));
-            assert!(err <= 0.5, "case {case}: iris off by {err} px ({:?} vs {:?})", e.centre, spec.iris_px());
-            assert!((e.opening - 4.0 * 0.22 * 2.0 / 9.0 * 2.0).abs() < 1e-9, "opening {}", e.opening);
+            assert!(
+                err <= 0.5,
+                "case {case}: iris off by {err} px ({:?} vs {:?})",
+                e.centre,
+                spec.iris_px()
+            );
+            assert!(
+                (e.opening - 4.0 * 0.22 * 2.0 / 9.0 * 2.0).abs() < 1e-9,
+                "opening {}",
+                e.opening
+            );
             assert!((e.width_px - width).abs() < 1e-9);
             assert!(e.confidence > 0.0 && e.confidence <= 1.0);
         }
@@ -71,7 +80,15 @@ fn a_lid_clipped_iris_in_the_middle_is_found_at_its_centre() {
 fn u_and_v_follow_the_documented_axes() {
     // both irises moved towards the image right and down: the right eye's iris goes to
     // its inner corner (u up), the left eye's to its outer corner (u down); v > 0 for both
-    let eyes = face(Point2::new(160.0, 120.0), 44.0, 0.0, 0.22, (0.62, 0.05), (0.38, 0.05), 0.12);
+    let eyes = face(
+        Point2::new(160.0, 120.0),
+        44.0,
+        0.0,
+        0.22,
+        (0.62, 0.05),
+        (0.38, 0.05),
+        0.12,
+    );
     let (img, lm) = render(320, 240, &eyes);
     let out = run(&img, &lm);
     assert!((out.right.u - 0.62).abs() < 0.02 && (out.left.u - 0.38).abs() < 0.02);
@@ -174,16 +191,77 @@ fn degenerate_and_out_of_image_landmarks_do_not_panic() {
 #[test]
 fn parameters_are_validated() {
     let bad: Vec<(&str, IrisParams)> = vec![
-        ("patch_width", IrisParams { patch_width: 8, ..IrisParams::default() }),
-        ("mask_margin", IrisParams { mask_margin: f64::NAN, ..IrisParams::default() }),
-        ("mask_margin", IrisParams { mask_margin: -0.1, ..IrisParams::default() }),
-        ("high_percentile", IrisParams { low_percentile: 0.5, high_percentile: 0.4, ..IrisParams::default() }),
-        ("threshold_level", IrisParams { threshold_level: 0.0, ..IrisParams::default() }),
-        ("kernel_sigma", IrisParams { kernel_sigma: f64::INFINITY, ..IrisParams::default() }),
-        ("iterations", IrisParams { iterations: 0, ..IrisParams::default() }),
-        ("min_eye_width_px", IrisParams { min_eye_width_px: 1.0, ..IrisParams::default() }),
-        ("min_opening", IrisParams { min_opening: 1.0, ..IrisParams::default() }),
-        ("min_contrast", IrisParams { min_contrast: 300.0, ..IrisParams::default() }),
+        (
+            "patch_width",
+            IrisParams {
+                patch_width: 8,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "mask_margin",
+            IrisParams {
+                mask_margin: f64::NAN,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "mask_margin",
+            IrisParams {
+                mask_margin: -0.1,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "high_percentile",
+            IrisParams {
+                low_percentile: 0.5,
+                high_percentile: 0.4,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "threshold_level",
+            IrisParams {
+                threshold_level: 0.0,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "kernel_sigma",
+            IrisParams {
+                kernel_sigma: f64::INFINITY,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "iterations",
+            IrisParams {
+                iterations: 0,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "min_eye_width_px",
+            IrisParams {
+                min_eye_width_px: 1.0,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "min_opening",
+            IrisParams {
+                min_opening: 1.0,
+                ..IrisParams::default()
+            },
+        ),
+        (
+            "min_contrast",
+            IrisParams {
+                min_contrast: 300.0,
+                ..IrisParams::default()
+            },
+        ),
     ];
     for (name, p) in bad {
         match IrisEstimator::new(p) {
@@ -192,7 +270,10 @@ fn parameters_are_validated() {
         }
     }
     assert!(IrisEstimator::new(IrisParams::default()).is_ok());
-    let g = GazeGains { look_up: -1.0, ..GazeGains::default() };
+    let g = GazeGains {
+        look_up: -1.0,
+        ..GazeGains::default()
+    };
     assert!(g.validate().is_err());
     assert!(GazeGains::default().validate().is_ok());
 }
@@ -200,7 +281,11 @@ fn parameters_are_validated() {
 #[test]
 fn a_workspace_of_another_size_is_an_error() {
     let a = IrisEstimator::new(IrisParams::default()).unwrap();
-    let b = IrisEstimator::new(IrisParams { patch_width: 32, ..IrisParams::default() }).unwrap();
+    let b = IrisEstimator::new(IrisParams {
+        patch_width: 32,
+        ..IrisParams::default()
+    })
+    .unwrap();
     let mut ws = b.new_workspace();
     let mut out = IrisFrame::default();
     let img = GrayImage::new(32, 32);
@@ -211,17 +296,34 @@ fn a_workspace_of_another_size_is_an_error() {
 }
 
 fn eye(u: f64, v: f64) -> EyeEstimate {
-    EyeEstimate { u, v, status: EyeStatus::Valid, confidence: 1.0, ..EyeEstimate::default() }
+    EyeEstimate {
+        u,
+        v,
+        status: EyeStatus::Valid,
+        confidence: 1.0,
+        ..EyeEstimate::default()
+    }
 }
 
 #[test]
 fn gaze_weights_follow_the_arkit_sides() {
-    let rest = GazeRest { right: EyeRest { u: 0.5, v: 0.0 }, left: EyeRest { u: 0.5, v: 0.0 } };
-    let gains = GazeGains { look_in: 10.0, look_out: 10.0, look_up: 10.0, look_down: 10.0 };
+    let rest = GazeRest {
+        right: EyeRest { u: 0.5, v: 0.0 },
+        left: EyeRest { u: 0.5, v: 0.0 },
+    };
+    let gains = GazeGains {
+        look_in: 10.0,
+        look_out: 10.0,
+        look_up: 10.0,
+        look_down: 10.0,
+    };
     let idx = |name: &str| GAZE_WEIGHT_NAMES.iter().position(|n| *n == name).unwrap();
     // looking towards the subject's left (image right): the right eye's iris moves to its
     // inner corner (u up), the left eye's to its outer corner (u down); and down
-    let f = IrisFrame { right: eye(0.55, 0.03), left: eye(0.45, 0.03) };
+    let f = IrisFrame {
+        right: eye(0.55, 0.03),
+        left: eye(0.45, 0.03),
+    };
     let w = gaze_weights(&f, &rest, &gains);
     assert!((w[idx("eyeLookOutLeft")] - 0.5).abs() < 1e-12);
     assert!((w[idx("eyeLookInRight")] - 0.5).abs() < 1e-12);
@@ -231,26 +333,44 @@ fn gaze_weights_follow_the_arkit_sides() {
     assert!((w[idx("eyeLookDownRight")] - 0.3).abs() < 1e-12);
     assert_eq!(w[idx("eyeLookUpLeft")], 0.0);
     // clamped to 1; up
-    let f = IrisFrame { right: eye(0.1, -0.5), left: eye(0.9, -0.5) };
+    let f = IrisFrame {
+        right: eye(0.1, -0.5),
+        left: eye(0.9, -0.5),
+    };
     let w = gaze_weights(&f, &rest, &gains);
     assert_eq!(w[idx("eyeLookOutRight")], 1.0);
     assert_eq!(w[idx("eyeLookInLeft")], 1.0);
     assert_eq!(w[idx("eyeLookUpLeft")], 1.0);
     assert_eq!(w[idx("eyeLookUpRight")], 1.0);
     // one eye invalid: it mirrors the other
-    let f = IrisFrame { right: eye(0.55, 0.03), left: EyeEstimate::default() };
+    let f = IrisFrame {
+        right: eye(0.55, 0.03),
+        left: EyeEstimate::default(),
+    };
     let w = gaze_weights(&f, &rest, &gains);
     assert!((w[idx("eyeLookOutLeft")] - 0.5).abs() < 1e-12);
     assert!((w[idx("eyeLookDownLeft")] - 0.3).abs() < 1e-12);
     // both invalid: all zero; NaN never leaks
     assert_eq!(gaze_weights(&IrisFrame::default(), &rest, &gains), [0.0; 8]);
-    let f = IrisFrame { right: eye(f64::NAN, 0.0), left: eye(0.5, f64::NAN) };
+    let f = IrisFrame {
+        right: eye(f64::NAN, 0.0),
+        left: eye(0.5, f64::NAN),
+    };
     assert!(gaze_weights(&f, &rest, &gains).iter().all(|w| (0.0..=1.0).contains(w)));
     // rest from a clip: per-eye medians of the valid estimates only
     let frames = [
-        IrisFrame { right: eye(0.4, 0.0), left: eye(0.6, 0.1) },
-        IrisFrame { right: eye(0.5, 0.2), left: EyeEstimate::default() },
-        IrisFrame { right: eye(0.9, 0.1), left: eye(0.2, 0.3) },
+        IrisFrame {
+            right: eye(0.4, 0.0),
+            left: eye(0.6, 0.1),
+        },
+        IrisFrame {
+            right: eye(0.5, 0.2),
+            left: EyeEstimate::default(),
+        },
+        IrisFrame {
+            right: eye(0.9, 0.1),
+            left: eye(0.2, 0.3),
+        },
     ];
     let r = GazeRest::median_of(&frames).unwrap();
     assert_eq!((r.right.u, r.right.v), (0.5, 0.1));

@@ -53,7 +53,13 @@ pub fn read_fixture() -> BTreeMap<String, Vec<MpRow>> {
         let f: Vec<&str> = line.split(',').collect();
         assert_eq!(f.len(), 15, "fixture row {line}");
         let face = f[2] == "1";
-        let num = |k: usize| if face { f[k].parse::<f64>().expect("number") } else { f64::NAN };
+        let num = |k: usize| {
+            if face {
+                f[k].parse::<f64>().expect("number")
+            } else {
+                f64::NAN
+            }
+        };
         let row = MpRow {
             face,
             right: [num(3), num(4)],
@@ -61,7 +67,11 @@ pub fn read_fixture() -> BTreeMap<String, Vec<MpRow>> {
             scores: std::array::from_fn(|k| num(7 + k)),
         };
         let rows = out.entry(f[0].to_string()).or_default();
-        assert_eq!(rows.len(), f[1].parse::<usize>().expect("frame"), "fixture frames in order");
+        assert_eq!(
+            rows.len(),
+            f[1].parse::<usize>().expect("frame"),
+            "fixture frames in order"
+        );
         rows.push(row);
     }
     out
@@ -75,9 +85,12 @@ pub fn tracker(test: &str) -> Option<LandmarkTracker<FaceDetector, ShapePredicto
         eprintln!("SKIP: {test}: face detector model missing");
         return None;
     };
-    let sp = ShapePredictor::from_file_cached(&sp_path).ok()?.0.with_params(ErtParams {
-        output: OutputPrecision::SubPixel,
-    });
+    let sp = ShapePredictor::from_file_cached(&sp_path)
+        .ok()?
+        .0
+        .with_params(ErtParams {
+            output: OutputPrecision::SubPixel,
+        });
     LandmarkTracker::new(det, sp, TrackerParams::default()).ok()
 }
 
@@ -191,6 +204,8 @@ pub struct EyeStats {
     pub r_u_iris: f64,
     /// See `r_u_iris`.
     pub r_v_iris: f64,
+    /// Median of our u - MediaPipe's iris u, and the same for v (eye widths).
+    pub bias_uv: [f64; 2],
     /// (Δu, Δv) per frame relative to the clip median, with MediaPipe's four scores of
     /// that eye (In, Out, Up, Down) minus their clip medians, for the gain fit.
     pub samples: Vec<([f64; 2], [f64; 4])>,
@@ -204,10 +219,14 @@ pub fn eye_stats(est: &[IrisFrame], lms: &[Option<Landmarks68>], mp: &[MpRow], r
     // (our u v, MediaPipe's iris u v in our eye frame, MediaPipe's 4 scores of this eye)
     let mut rows: Vec<([f64; 2], [f64; 2], [f64; 4])> = Vec::new();
     for (k, f) in est.iter().enumerate() {
-        let Some(lm) = lms.get(k).and_then(|l| l.as_ref()) else { continue };
+        let Some(lm) = lms.get(k).and_then(|l| l.as_ref()) else {
+            continue;
+        };
         s.tracked += 1;
         let e: EyeEstimate = if right { f.right } else { f.left };
-        let Some(m) = mp.get(k).filter(|m| m.face) else { continue };
+        let Some(m) = mp.get(k).filter(|m| m.face) else {
+            continue;
+        };
         if !e.valid() {
             continue;
         }
@@ -246,6 +265,10 @@ pub fn eye_stats(est: &[IrisFrame], lms: &[Option<Landmarks68>], mp: &[MpRow], r
         s.r_v = Some(pearson(&v, &ref_v));
         s.r_v_mp_iris = Some(pearson(&v_mp, &ref_v));
     }
+    s.bias_uv = [
+        median(&u.iter().zip(&u_mp).map(|(a, b)| a - b).collect::<Vec<_>>()),
+        median(&v.iter().zip(&v_mp).map(|(a, b)| a - b).collect::<Vec<_>>()),
+    ];
     s.r_u_iris = pearson(&u, &u_mp);
     s.r_v_iris = pearson(&v, &v_mp);
     let med_sc: [f64; 4] = std::array::from_fn(|j| median(&col(2, j)));

@@ -34,7 +34,11 @@ impl EyeSpec {
         let d = self.inner - self.outer;
         let l = d.norm();
         let a = d / l;
-        let n = if self.right { Vector2::new(-a.y, a.x) } else { Vector2::new(a.y, -a.x) };
+        let n = if self.right {
+            Vector2::new(-a.y, a.x)
+        } else {
+            Vector2::new(a.y, -a.x)
+        };
         (a, n, l)
     }
 
@@ -62,7 +66,11 @@ impl EyeSpec {
             return None;
         }
         let (du, dv) = (u - self.iris_uv.0, v - self.iris_uv.1);
-        Some(if (du * du + dv * dv).sqrt() <= self.iris_r { IRIS } else { SCLERA })
+        Some(if (du * du + dv * dv).sqrt() <= self.iris_r {
+            IRIS
+        } else {
+            SCLERA
+        })
     }
 
     /// The 6 landmarks in iBUG order for this eye: for the right eye 36 outer, 37, 38
