@@ -399,7 +399,7 @@ impl IrisEstimator {
         let axis = i - o;
         let l = axis.norm();
         est.width_px = l;
-        if !(l >= p.min_eye_width_px) {
+        if l.is_nan() || l < p.min_eye_width_px {
             est.status = EyeStatus::TooSmall;
             return (est, 0);
         }
@@ -507,7 +507,7 @@ impl IrisEstimator {
             sx += f64::from(rx);
             sy += f64::from(rw) * r as f64;
         }
-        if !(sw > 0.0) {
+        if sw.is_nan() || sw <= 0.0 {
             est.status = EyeStatus::Implausible;
             return (est, 0);
         }
@@ -543,7 +543,7 @@ impl IrisEstimator {
                 sx += f64::from(rx) * gy;
                 sy += f64::from(rw) * gy * r as f64;
             }
-            if !(sw > 0.0) {
+            if sw.is_nan() || sw <= 0.0 {
                 break;
             }
             let (nx, ny) = (sx / sw, sy / sw);
@@ -758,7 +758,7 @@ impl GazeGains {
 /// `u` (the eyes move together); when both are, every weight is 0. Non-finite gains or
 /// offsets give 0, never NaN.
 pub fn gaze_weights(frame: &IrisFrame, rest: &GazeRest, gains: &GazeGains) -> [f64; 8] {
-    let offset = |e: &EyeEstimate, r: &EyeRest| e.valid().then(|| (e.u - r.u, e.v - r.v));
+    let offset = |e: &EyeEstimate, r: &EyeRest| e.valid().then_some((e.u - r.u, e.v - r.v));
     let (ro, lo) = (offset(&frame.right, &rest.right), offset(&frame.left, &rest.left));
     let (ro, lo) = match (ro, lo) {
         (Some(r), Some(l)) => (r, l),

@@ -131,8 +131,7 @@ fn a_flat_eye_region_is_low_contrast() {
 fn degenerate_and_out_of_image_landmarks_do_not_panic() {
     let eyes = face(Point2::new(160.0, 120.0), 44.0, 0.0, 0.22, (0.5, 0.0), (0.5, 0.0), 0.12);
     let (img, good) = render(320, 240, &eyes);
-    let mut cases: Vec<(Landmarks68, Option<EyeStatus>)> = Vec::new();
-    cases.push((Landmarks68::default(), Some(EyeStatus::TooSmall)));
+    let mut cases: Vec<(Landmarks68, Option<EyeStatus>)> = vec![(Landmarks68::default(), Some(EyeStatus::TooSmall))];
     let mut nan = good.clone();
     nan.points[37].x = f64::NAN;
     nan.points[44].y = f64::INFINITY;
@@ -153,8 +152,8 @@ fn degenerate_and_out_of_image_landmarks_do_not_panic() {
     }
     cases.push((huge, Some(EyeStatus::OutOfImage)));
     let mut collinear = good.clone();
-    for i in 36..48 {
-        collinear.points[i].y = 120.0; // lids on the corner axis: opening 0
+    for p in collinear.points.iter_mut().skip(36).take(12) {
+        p.y = 120.0; // lids on the corner axis: opening 0
     }
     cases.push((collinear, Some(EyeStatus::Closed)));
     // random landmarks around the image, seeded

@@ -174,7 +174,7 @@ pub fn median(x: &[f64]) -> f64 {
     }
 }
 
-fn std(x: &[f64]) -> f64 {
+fn std_dev(x: &[f64]) -> f64 {
     let n = x.len() as f64;
     let m = x.iter().sum::<f64>() / n;
     (x.iter().map(|a| (a - m) * (a - m)).sum::<f64>() / n).sqrt()
@@ -257,11 +257,11 @@ pub fn eye_stats(est: &[IrisFrame], lms: &[Option<Landmarks68>], mp: &[MpRow], r
     let h_mp: Vec<f64> = u_mp.iter().map(|x| -x).collect();
     let ref_h: Vec<f64> = rows.iter().map(|r| r.2[1] - r.2[0]).collect();
     let ref_v: Vec<f64> = rows.iter().map(|r| r.2[3] - r.2[2]).collect();
-    if std(&ref_h) >= MIN_REFERENCE_STD {
+    if std_dev(&ref_h) >= MIN_REFERENCE_STD {
         s.r_h = Some(pearson(&h, &ref_h));
         s.r_h_mp_iris = Some(pearson(&h_mp, &ref_h));
     }
-    if std(&ref_v) >= MIN_REFERENCE_STD {
+    if std_dev(&ref_v) >= MIN_REFERENCE_STD {
         s.r_v = Some(pearson(&v, &ref_v));
         s.r_v_mp_iris = Some(pearson(&v_mp, &ref_v));
     }
