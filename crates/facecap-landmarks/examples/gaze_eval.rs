@@ -57,6 +57,17 @@ fn main() {
         ));
         variants.push(("patch_width 32".into(), IrisParams { patch_width: 32, ..d }));
         variants.push(("patch_width 64".into(), IrisParams { patch_width: 64, ..d }));
+        for (t, m, k) in [(0.6, 0.0, 0.15), (0.7, 0.0, 0.15), (0.6, 0.0, 0.12), (0.7, 0.03, 0.12)] {
+            variants.push((
+                format!("threshold_level {t}, mask_margin {m}, kernel_sigma {k}"),
+                IrisParams {
+                    threshold_level: t,
+                    mask_margin: m,
+                    kernel_sigma: k,
+                    ..d
+                },
+            ));
+        }
     }
     let ests: Vec<IrisEstimator> = variants.iter().map(|v| IrisEstimator::new(v.1).unwrap()).collect();
     let fx = read_fixture();
