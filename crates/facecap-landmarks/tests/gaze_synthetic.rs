@@ -376,3 +376,33 @@ fn gaze_weights_follow_the_arkit_sides() {
     assert!((r.left.u - 0.4).abs() < 1e-12 && (r.left.v - 0.2).abs() < 1e-12);
     assert!(GazeRest::median_of(&[IrisFrame::default()]).is_none());
 }
+
+#[test]
+fn the_estimator_is_shareable_between_threads() {
+    fn send_sync<T: Send + Sync>(_: &T) {}
+    let est = IrisEstimator::new(IrisParams::default()).unwrap();
+    send_sync(&est);
+    // one estimator, one workspace per thread, identical results
+    let eyes = face(
+        Point2::new(160.0, 120.0),
+        44.0,
+        0.2,
+        0.22,
+        (0.45, 0.02),
+        (0.55, -0.02),
+        0.12,
+    );
+    let (img, lm) = render(320, 240, &eyes);
+    let here = run(&img, &lm);
+    let there = std::thread::scope(|s| {
+        s.spawn(|| {
+            let mut ws = est.new_workspace();
+            let mut out = IrisFrame::default();
+            est.estimate_into(&img, &lm, &mut ws, &mut out).unwrap();
+            out
+        })
+        .join()
+        .unwrap()
+    });
+    assert_eq!(here, there);
+}
