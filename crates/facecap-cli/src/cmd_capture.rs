@@ -124,6 +124,8 @@ struct Setup {
     objective: ObjectiveParams,
     camera: Option<Intrinsics>,
     tracker: LandmarkTracker<facecap_landmarks::detect::FaceDetector, facecap_landmarks::ert::ShapePredictor>,
+    /// Iris centres from the grey frames: the gaze signal of the rig's `eyeLook*` shapes.
+    iris: facecap_landmarks::gaze::IrisEstimator,
     muscles: Option<crate::capture_extras::MuscleSetup>,
     tensor: Option<crate::capture_extras::TensorSetup>,
     neutral: crate::neutral::NeutralChoice,
@@ -190,6 +192,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         tracker_params.filter = Some(facecap_landmarks::tracker::one_euro::OneEuroParams::default());
     }
     let tracker = LandmarkTracker::new(detector, ert, tracker_params)?;
+    let iris = facecap_landmarks::gaze::IrisEstimator::new(facecap_landmarks::gaze::IrisParams::default())?;
     let muscles = args
         .muscles
         .as_deref()
@@ -220,6 +223,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         objective,
         camera,
         tracker,
+        iris,
         muscles,
         tensor,
         neutral,
@@ -334,6 +338,8 @@ struct Tracked {
     /// The landmarks when tracking succeeded.
     landmarks: Option<Landmarks68>,
     confidence: f64,
+    /// Iris centres (only when the rig has gaze shapes and the face was tracked).
+    iris: Option<facecap_landmarks::gaze::IrisFrame>,
     /// The grey frame, for the frames shown on the report's contact sheet.
     gray: Option<GrayImage>,
 }
@@ -356,9 +362,52 @@ struct SolveStage<'a> {
     frames: Vec<FrameOut>,
     faces_found: u64,
     timings: Timings,
+    /// The gaze shapes' indices in the rig, in `GAZE_WEIGHT_NAMES` order.
+    gaze_idx: [Option<usize>; 8],
+    /// The subject's resting gaze (the clip median when every frame is known first).
+    gaze_rest: Option<facecap_landmarks::gaze::GazeRest>,
+    /// Whether `gaze_rest` is the whole clip's median (else a running one).
+    gaze_rest_from_clip: bool,
+    /// Iris estimates so far (the running rest when frames stream).
+    iris_seen: Vec<facecap_landmarks::gaze::IrisFrame>,
+}
+
+/// The rig's gaze shapes in [`facecap_landmarks::gaze::GAZE_WEIGHT_NAMES`] order (ARKit
+/// `eyeLookInLeft` or ICT `eyeLookIn_L` names).
+fn gaze_indices(names: &[String]) -> [Option<usize>; 8] {
+    use facecap_solve::observability::split_side;
+    let mut out = [None; 8];
+    for (slot, want) in out.iter_mut().zip(facecap_landmarks::gaze::GAZE_WEIGHT_NAMES) {
+        let (wb, ws) = split_side(want);
+        *slot = names.iter().position(|n| split_side(n) == (wb, ws));
+    }
+    out
 }
 
 impl SolveStage<'_> {
+    /// Writes the gaze weights of this frame into `weights` (the solve holds them at 0).
+    fn apply_gaze(&mut self, iris: Option<&facecap_landmarks::gaze::IrisFrame>, weights: &mut [f64]) {
+        if self.gaze_idx.iter().all(Option::is_none) {
+            return;
+        }
+        let Some(iris) = iris else { return };
+        if !self.gaze_rest_from_clip && self.iris_seen.len() < 100_000 {
+            // streaming: the running median of the frames so far stands in for the clip's
+            self.iris_seen.push(*iris);
+            let seen = self.iris_seen.len();
+            if seen >= 15 && (seen % 15 == 0 || self.gaze_rest.is_none()) {
+                self.gaze_rest = facecap_landmarks::gaze::GazeRest::median_of(&self.iris_seen);
+            }
+        }
+        let Some(rest) = self.gaze_rest else { return };
+        let g = facecap_landmarks::gaze::gaze_weights(iris, &rest, &facecap_landmarks::gaze::GazeGains::default());
+        for (slot, v) in self.gaze_idx.iter().zip(g) {
+            if let Some(k) = slot {
+                weights[*k] = v;
+            }
+        }
+    }
+
     fn run(&mut self, solver: &AnySolver, queue: impl IntoIterator<Item = Tracked>) -> anyhow::Result<()> {
         let n = solver.num_shapes();
         let mut solver_ws = solver.workspace();
@@ -393,6 +442,7 @@ impl SolveStage<'_> {
                     Ok(_) => {
                         out.success = true;
                         out.weights.copy_from_slice(&solution.weights);
+                        self.apply_gaze(msg.iris.as_ref(), &mut out.weights);
                         out.pose = solution.pose;
                         out.reprojection_px = solution.reprojection_error(l);
                         prev_weights.copy_from_slice(&solution.weights);
@@ -538,7 +588,14 @@ fn capture_one(
         frames: Vec::new(),
         faces_found: 0,
         timings: Timings::default(),
+        gaze_idx: gaze_indices(&names),
+        gaze_rest: None,
+        gaze_rest_from_clip: false,
+        iris_seen: Vec::new(),
     };
+    let want_iris = stage.gaze_idx.iter().any(Option::is_some);
+    let mut iris_ws = setup.iris.new_workspace();
+    let mut iris_frame = facecap_landmarks::gaze::IrisFrame::default();
     let (decode_result, track_result, stage_result) = std::thread::scope(|scope| {
         let decoder = scope.spawn(move || -> anyhow::Result<f64> {
             let mut busy = 0.0;
@@ -585,11 +642,21 @@ fn capture_one(
                 busy += t.elapsed().as_secs_f64();
                 let keep = frame.index as usize % sheet_every == 0 && sent_sheet < sheet_max;
                 sent_sheet += usize::from(keep);
+                let iris = if want_iris && tracked.success {
+                    setup
+                        .iris
+                        .estimate_into(&frame.gray, &tracked.landmarks, &mut iris_ws, &mut iris_frame)
+                        .ok()
+                        .map(|_| iris_frame)
+                } else {
+                    None
+                };
                 let msg = Tracked {
                     index: frame.index,
                     timestamp: frame.timestamp_s,
                     landmarks: tracked.success.then(|| tracked.landmarks.clone()),
                     confidence: tracked.confidence,
+                    iris,
                     gray: keep.then(|| frame.gray.clone()),
                 };
                 if track_tx.send(msg).is_err() {
@@ -635,6 +702,9 @@ fn capture_one(
             _ => crate::neutral::calibrate(setup.neutral, &solver, &setup.rig, camera, &tracked_frames)?,
         };
         neutral_report = cal.report;
+        let irises: Vec<facecap_landmarks::gaze::IrisFrame> = collected.iter().filter_map(|t| t.iris).collect();
+        stage.gaze_rest = facecap_landmarks::gaze::GazeRest::median_of(&irises);
+        stage.gaze_rest_from_clip = stage.gaze_rest.is_some();
         let calibrated = with_priors(AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?)?;
         stage.run(&calibrated, collected)?;
     }
