@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use facecap_core::paths;
-use facecap_landmarks::detect::{DetectorParams, FaceDetector, Par, DLIB_FRONTAL_MODEL};
+use facecap_landmarks::detect::{DetectorParams, FaceDetector, Par, Upsample, DLIB_FRONTAL_MODEL};
 use image::{imageops, GrayImage};
 use rand::{Rng, SeedableRng};
 
@@ -76,7 +76,7 @@ fn bench(c: &mut Criterion) {
                 .clone()
                 .with_params(DetectorParams {
                     par,
-                    upsample: up,
+                    upsample: Upsample::Times(up),
                     ..Default::default()
                 })
                 .unwrap();
