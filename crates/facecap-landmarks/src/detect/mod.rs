@@ -244,7 +244,7 @@ struct LevelWs {
     feats: fhog::FhogImage,
     fscratch: fhog::FhogScratch,
     sscratch: scan::ScanScratch,
-    saliency: Vec<f32>,
+    hits: Vec<scan::Hit>,
     cands: Vec<Candidate>,
 }
 
@@ -554,28 +554,22 @@ impl FaceDetector {
         if lw.feats.width == 0 {
             return;
         }
-        let w = lw.feats.width;
         let det_w = (fw - 2 * m.padding) as i64;
         let det_h = (fh - 2 * m.padding) as i64;
         for (d, bank) in self.banks.iter().enumerate() {
-            let Some(area) = scan::saliency(bank, &lw.feats, &mut lw.sscratch, &mut lw.saliency) else {
-                continue;
-            };
             let thresh = bank.threshold + self.params.adjust_threshold;
+            lw.hits.clear();
+            if scan::candidates(bank, &lw.feats, thresh, &mut lw.sscratch, &mut lw.hits).is_none() {
+                continue;
+            }
             let start = lw.cands.len();
-            for r in area.r0..area.r1 {
-                let row = &lw.saliency[r * w..(r + 1) * w];
-                for c in area.c0..area.c1 {
-                    let s = f64::from(row[c]);
-                    if s >= thresh {
-                        let rect = window_rect(c as i64, r as i64, det_w, det_h, m.cell_size as i64, fw, fh);
-                        lw.cands.push(Candidate {
-                            score: s - bank.threshold,
-                            detector: d,
-                            rect: pyramid::rect_up6(rect, level),
-                        });
-                    }
-                }
+            for hit in &lw.hits {
+                let rect = window_rect(hit.c as i64, hit.r as i64, det_w, det_h, m.cell_size as i64, fw, fh);
+                lw.cands.push(Candidate {
+                    score: f64::from(hit.score) - bank.threshold,
+                    detector: d,
+                    rect: pyramid::rect_up6(rect, level),
+                });
             }
             // dlib sorts each sub-detector's list by score before merging
             lw.cands[start..].sort_by(|a, b| b.score.total_cmp(&a.score));
