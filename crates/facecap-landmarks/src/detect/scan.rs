@@ -321,24 +321,18 @@ pub fn exact_score_at(bank: &FilterBank, feats: &FhogImage, tail: usize, r: usiz
 }
 
 /// Fills `scratch.fast` (rows `area.r0..r1` x columns `area.c0..c1`, compact) with the
-/// fast scores, on AVX2 + FMA when the CPU has them.
+/// fast scores: AVX2 + FMA (8 lanes) when the CPU has them, else one lane.
 fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratch: &mut ScanScratch) {
-    let op = FastScores {
+    pulp::Arch::new().dispatch(FastScores {
         bank,
         feats,
         area,
         rowpass: &mut scratch.rowpass,
         out: &mut scratch.fast,
-    };
-    #[cfg(target_arch = "x86_64")]
-    if let Some(v3) = pulp::x86::V3::try_new() {
-        pulp::Simd::vectorize(v3, op);
-        return;
-    }
-    fast_scores(op, |a, b, c| a * b + c);
+    });
 }
 
-/// The fast pass as a `pulp` operation (compiled with the dispatched CPU features).
+/// The fast pass as a `pulp` operation (compiled for the dispatched CPU features).
 struct FastScores<'a> {
     bank: &'a FilterBank,
     feats: &'a FhogImage,
@@ -347,90 +341,92 @@ struct FastScores<'a> {
     out: &'a mut Vec<f32>,
 }
 
+/// `lanes` floats from the start of `s` as one vector (unaligned load).
+#[inline(always)]
+fn load<S: pulp::Simd>(s: &[f32]) -> S::f32s {
+    bytemuck::pod_read_unaligned(bytemuck::cast_slice(s))
+}
+
+/// One vector into the start of `d`.
+#[inline(always)]
+fn store<S: pulp::Simd>(d: &mut [f32], v: S::f32s) {
+    d.copy_from_slice(bytemuck::cast_slice(std::slice::from_ref(&v)));
+}
+
 impl pulp::WithSimd for FastScores<'_> {
     type Output = ();
 
+    /// `s(r, c) = sum_terms sum_m col[m] sum_k row[k] H[r - hr + m][c - hc + k]`: per
+    /// term a row pass into `rowpass`, then a column pass added into `out`, each on
+    /// blocks of one vector of output columns kept in a register across the taps
+    /// (`mul_add_e`: fused where the CPU has FMA), a scalar loop for the last columns.
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        // only reached with FMA available: `mul_add` is one instruction
-        fast_scores(self, f32::mul_add);
-    }
-}
-
-/// Lanes per block of the fast pass (one AVX register of f32).
-const LANES: usize = 8;
-
-/// `s(r, c) = sum_terms sum_m col[m] sum_k row[k] H[r - hr + m][c - hc + k]` with
-/// `fma(a, b, acc) = a * b + acc`, blocks of [`LANES`] output columns kept in
-/// registers across the taps.
-#[inline(always)]
-fn fast_scores(op: FastScores<'_>, fma: impl Fn(f32, f32, f32) -> f32 + Copy) {
-    let FastScores {
-        bank,
-        feats,
-        area,
-        rowpass,
-        out,
-    } = op;
-    let (w, h) = (feats.width, feats.height);
-    let (hr, hc) = (bank.fh / 2, bank.fw / 2);
-    let nc = area.c1 - area.c0;
-    let nr = area.r1 - area.r0;
-    out.clear();
-    out.resize(nr * nc, 0.0);
-    rowpass.clear();
-    rowpass.resize(h * nc, 0.0);
-    let blocks = nc / LANES * LANES;
-    for term in &bank.terms {
-        let plane = feats.plane(term.plane);
-        let (fr, fcol) = (&term.row[..], &term.col[..]);
-        // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k]
-        for y in 0..h {
-            let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
-            let dst = &mut rowpass[y * nc..(y + 1) * nc];
-            let mut j = 0;
-            while j < blocks {
-                let mut acc = [0f32; LANES];
-                for (k, &f) in fr.iter().enumerate() {
-                    let s = &src[j + k..j + k + LANES];
-                    for l in 0..LANES {
-                        acc[l] = fma(s[l], f, acc[l]);
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let FastScores {
+            bank,
+            feats,
+            area,
+            rowpass,
+            out,
+        } = self;
+        let lanes = std::mem::size_of::<S::f32s>() / std::mem::size_of::<f32>();
+        let (w, h) = (feats.width, feats.height);
+        let (hr, hc) = (bank.fh / 2, bank.fw / 2);
+        let nc = area.c1 - area.c0;
+        let nr = area.r1 - area.r0;
+        out.clear();
+        out.resize(nr * nc, 0.0);
+        rowpass.clear();
+        rowpass.resize(h * nc, 0.0);
+        let blocks = nc / lanes * lanes;
+        for term in &bank.terms {
+            let plane = feats.plane(term.plane);
+            let (fr, fcol) = (&term.row[..], &term.col[..]);
+            let span = lanes + fr.len() - 1;
+            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k]
+            for y in 0..h {
+                let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
+                let dst = &mut rowpass[y * nc..(y + 1) * nc];
+                let mut j = 0;
+                while j < blocks {
+                    let win = &src[j..j + span];
+                    let mut acc = simd.splat_f32s(0.0);
+                    for (k, &f) in fr.iter().enumerate() {
+                        acc = simd.mul_add_e_f32s(load::<S>(&win[k..k + lanes]), simd.splat_f32s(f), acc);
                     }
+                    store::<S>(&mut dst[j..j + lanes], acc);
+                    j += lanes;
                 }
-                dst[j..j + LANES].copy_from_slice(&acc);
-                j += LANES;
-            }
-            for j in blocks..nc {
-                let mut a = 0f32;
-                for (k, &f) in fr.iter().enumerate() {
-                    a = fma(src[j + k], f, a);
-                }
-                dst[j] = a;
-            }
-        }
-        // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
-        for r in 0..nr {
-            let top = area.r0 + r - hr;
-            let o = &mut out[r * nc..(r + 1) * nc];
-            let mut j = 0;
-            while j < blocks {
-                let mut acc = [0f32; LANES];
-                acc.copy_from_slice(&o[j..j + LANES]);
-                for (m, &f) in fcol.iter().enumerate() {
-                    let s = &rowpass[(top + m) * nc + j..(top + m) * nc + j + LANES];
-                    for l in 0..LANES {
-                        acc[l] = fma(s[l], f, acc[l]);
+                for j in blocks..nc {
+                    let mut a = 0f32;
+                    for (k, &f) in fr.iter().enumerate() {
+                        a += src[j + k] * f;
                     }
+                    dst[j] = a;
                 }
-                o[j..j + LANES].copy_from_slice(&acc);
-                j += LANES;
             }
-            for j in blocks..nc {
-                let mut a = o[j];
-                for (m, &f) in fcol.iter().enumerate() {
-                    a = fma(rowpass[(top + m) * nc + j], f, a);
+            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
+            for r in 0..nr {
+                let top = area.r0 + r - hr;
+                let rows = &rowpass[top * nc..(top + fcol.len()) * nc];
+                let o = &mut out[r * nc..(r + 1) * nc];
+                let mut j = 0;
+                while j < blocks {
+                    let mut acc = load::<S>(&o[j..j + lanes]);
+                    for (m, &f) in fcol.iter().enumerate() {
+                        let at = m * nc + j;
+                        acc = simd.mul_add_e_f32s(load::<S>(&rows[at..at + lanes]), simd.splat_f32s(f), acc);
+                    }
+                    store::<S>(&mut o[j..j + lanes], acc);
+                    j += lanes;
                 }
-                o[j] = a;
+                for j in blocks..nc {
+                    let mut a = o[j];
+                    for (m, &f) in fcol.iter().enumerate() {
+                        a += rows[m * nc + j] * f;
+                    }
+                    o[j] = a;
+                }
             }
         }
     }
@@ -840,7 +836,7 @@ mod tests {
                         rowpass: &mut scratch.rowpass,
                         out: &mut scratch.fast,
                     };
-                    fast_scores(op, |a, b, c| a * b + c);
+                    pulp::Simd::vectorize(pulp::Scalar, op);
                 } else {
                     fast_scores_dispatch(&bank, &feats, area, &mut scratch);
                 }
