@@ -283,10 +283,11 @@ pub fn candidates(
     };
     fast_scores_dispatch(bank, feats, area, scratch);
     let nc = area.c1 - area.c0;
+    let stride = fast_stride(bank, nc);
     let tail = simd_end(area.c0, area.c1);
     let cut = thresh - EXACT_RECHECK_MARGIN;
     for r in area.r0..area.r1 {
-        let row = &scratch.fast[(r - area.r0) * nc..(r - area.r0 + 1) * nc];
+        let row = &scratch.fast[(r - area.r0) * stride..(r - area.r0) * stride + nc];
         for (j, &v) in row.iter().enumerate() {
             if f64::from(v) >= cut {
                 let c = area.c0 + j;
@@ -320,9 +321,27 @@ pub fn exact_score_at(bank: &FilterBank, feats: &FhogImage, tail: usize, r: usiz
     total
 }
 
-/// Fills `scratch.fast` (rows `area.r0..r1` x columns `area.c0..c1`, compact) with the
-/// fast scores: AVX2 + FMA (8 lanes) when the CPU has them, else one lane.
+/// Fills `scratch.fast` (rows `area.r0..r1` x columns `area.c0..c1`, compact, row
+/// stride [`fast_stride`]) with the fast scores: the AVX2 + FMA kernel for 10-tap
+/// filters when the CPU has them ([`FastV3`]), else the generic `pulp` pass.
 fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratch: &mut ScanScratch) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v3) = pulp::x86::V3::try_new() {
+        if bank.fw == TAPS && bank.fh == TAPS && area.c1 - area.c0 >= V3_LANES {
+            pulp::Simd::vectorize(
+                v3,
+                FastV3 {
+                    v3,
+                    bank,
+                    feats,
+                    area,
+                    rowpass: &mut scratch.rowpass,
+                    out: &mut scratch.fast,
+                },
+            );
+            return;
+        }
+    }
     pulp::Arch::new().dispatch(FastScores {
         bank,
         feats,
@@ -330,6 +349,115 @@ fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratc
         rowpass: &mut scratch.rowpass,
         out: &mut scratch.fast,
     });
+}
+
+/// Row stride of `scratch.fast` for an area `nc` columns wide: `nc` rounded up to
+/// whole 8-lane blocks when [`FastV3`] runs, else `nc`.
+fn fast_stride(bank: &FilterBank, nc: usize) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if pulp::x86::V3::is_available() && bank.fw == TAPS && bank.fh == TAPS && nc >= V3_LANES {
+        return nc.div_ceil(V3_LANES) * V3_LANES;
+    }
+    let _ = bank;
+    nc
+}
+
+/// Filter taps the AVX2 kernel is specialised for (dlib's 10 x 10 cell windows).
+const TAPS: usize = 10;
+
+/// f32 lanes of an AVX register.
+const V3_LANES: usize = 8;
+
+/// The fast pass for 10 x 10 filters on AVX2 + FMA: the same sums as [`FastScores`],
+/// with the ten taps unrolled over fixed-size windows (no bounds checks in the inner
+/// loops), rows of `rowpass` and `out` padded to whole 8-lane blocks, and the row
+/// pass's last block overlapping the one before it (its writes are idempotent).
+#[cfg(target_arch = "x86_64")]
+struct FastV3<'a> {
+    v3: pulp::x86::V3,
+    bank: &'a FilterBank,
+    feats: &'a FhogImage,
+    area: Area,
+    rowpass: &'a mut Vec<f32>,
+    out: &'a mut Vec<f32>,
+}
+
+/// Eight floats from `s[at..]` as one vector.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn ld8(s: &[f32], at: usize) -> pulp::f32x8 {
+    let s = &s[at..at + V3_LANES];
+    bytemuck::cast([s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]])
+}
+
+/// One vector into `d[at..at + 8]`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn st8(d: &mut [f32], at: usize, v: pulp::f32x8) {
+    let a: [f32; V3_LANES] = bytemuck::cast(v);
+    d[at..at + V3_LANES].copy_from_slice(&a);
+}
+
+#[cfg(target_arch = "x86_64")]
+impl pulp::WithSimd for FastV3<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let FastV3 {
+            v3,
+            bank,
+            feats,
+            area,
+            rowpass,
+            out,
+        } = self;
+        let (w, h) = (feats.width, feats.height);
+        let (hr, hc) = (bank.fh / 2, bank.fw / 2);
+        let nc = area.c1 - area.c0;
+        let nr = area.r1 - area.r0;
+        let stride = nc.div_ceil(V3_LANES) * V3_LANES;
+        out.clear();
+        out.resize(nr * stride, 0.0);
+        rowpass.clear();
+        rowpass.resize(h * stride, 0.0);
+        let span = V3_LANES + TAPS - 1;
+        let zero = v3.splat_f32x8(0.0);
+        for term in &bank.terms {
+            let plane = feats.plane(term.plane);
+            let fr: [pulp::f32x8; TAPS] = std::array::from_fn(|k| v3.splat_f32x8(term.row[k]));
+            let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
+            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k]
+            for y in 0..h {
+                let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
+                let dst = &mut rowpass[y * stride..y * stride + nc];
+                let mut j = 0;
+                while j < nc {
+                    let jj = j.min(nc - V3_LANES);
+                    let win = &src[jj..jj + span];
+                    let mut acc = zero;
+                    for k in 0..TAPS {
+                        acc = v3.mul_add_f32x8(ld8(win, k), fr[k], acc);
+                    }
+                    st8(dst, jj, acc);
+                    j += V3_LANES;
+                }
+            }
+            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
+            for r in 0..nr {
+                let top = area.r0 + r - hr;
+                let rows = &rowpass[top * stride..(top + TAPS) * stride];
+                let o = &mut out[r * stride..(r + 1) * stride];
+                for j in (0..stride).step_by(V3_LANES) {
+                    let mut acc = ld8(o, j);
+                    for m in 0..TAPS {
+                        acc = v3.mul_add_f32x8(ld8(rows, m * stride + j), fc[m], acc);
+                    }
+                    st8(o, j, acc);
+                }
+            }
+        }
+    }
 }
 
 /// The fast pass as a `pulp` operation (compiled for the dispatched CPU features).
@@ -828,6 +956,7 @@ mod tests {
             let area = saliency(&bank, &feats, &mut scratch, &mut sal).unwrap();
             let nc = area.c1 - area.c0;
             for portable in [false, true] {
+                let stride = if portable { nc } else { fast_stride(&bank, nc) };
                 if portable {
                     let op = FastScores {
                         bank: &bank,
@@ -842,7 +971,8 @@ mod tests {
                 }
                 for r in area.r0..area.r1 {
                     for c in area.c0..area.c1 {
-                        let d = f64::from(scratch.fast[(r - area.r0) * nc + c - area.c0]) - f64::from(sal[r * w + c]);
+                        let d =
+                            f64::from(scratch.fast[(r - area.r0) * stride + c - area.c0]) - f64::from(sal[r * w + c]);
                         worst = worst.max(d.abs());
                     }
                 }
