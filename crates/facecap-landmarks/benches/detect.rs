@@ -68,15 +68,16 @@ fn bench(c: &mut Criterion) {
         .warm_up_time(Duration::from_millis(500));
     for (name, img) in frames() {
         for (pname, par, up) in [
-            ("seq", Par::Seq, 0u32),
-            ("rayon", Par::Rayon, 0),
-            ("seq_up1", Par::Seq, 1),
+            ("seq", Par::Seq, Upsample::Times(0)),
+            ("rayon", Par::Rayon, Upsample::Times(0)),
+            ("seq_up1", Par::Seq, Upsample::Times(1)),
+            ("seq_auto", Par::Seq, Upsample::Auto),
         ] {
             let d = det
                 .clone()
                 .with_params(DetectorParams {
                     par,
-                    upsample: Upsample::Times(up),
+                    upsample: up,
                     ..Default::default()
                 })
                 .unwrap();
