@@ -11,6 +11,7 @@
 //! Every file is written atomically (temporary file + rename), so an interrupt or a
 //! crash never leaves a half-written file under a final name.
 
+use facecap_landmarks::detect::Upsample;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -101,6 +102,11 @@ pub struct Args {
     /// Print a JSON summary of all videos on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
+    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
+    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
+    #[arg(long, value_name = "auto|N", default_value = "auto")]
+    pub upsample: Upsample,
 }
 
 /// The solver's time-aligned per-frame output kept for the animation and report.
@@ -174,7 +180,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     };
     objective.validate()?;
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
-    let detector = facecap_landmarks::detect::FaceDetector::default_model()?;
+    let detector = facecap_landmarks::detect::FaceDetector::default_model()?.with_upsample(args.upsample)?;
     let ert_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
         anyhow::anyhow!(
             "{} is not in the model cache: run scripts/setup.sh",

@@ -16,6 +16,7 @@
 //! A single video input (mp4, avi, mov, mkv, webm, y4m) is handed to the video
 //! mode ([`crate::cmd_landmarks_video`]).
 
+use facecap_landmarks::detect::Upsample;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -61,6 +62,11 @@ pub struct Args {
     /// Grey conversion of colour images.
     #[arg(long, value_enum, default_value_t = GreyMode::Bt601)]
     pub grey: GreyMode,
+    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
+    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
+    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
+    #[arg(long, value_name = "auto|N", default_value = "auto")]
+    pub upsample: Upsample,
 }
 
 /// What the video mode receives from `facecap landmarks VIDEO ...`.
@@ -74,6 +80,8 @@ pub struct VideoJob {
     pub draw: bool,
     /// `--model`, when given (else the cache's 68-point model).
     pub model: Option<PathBuf>,
+    /// `--upsample`.
+    pub upsample: Upsample,
 }
 
 fn parse_box(s: &str) -> Result<Rect, String> {
@@ -119,6 +127,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             out_dir: args.out.clone(),
             draw: args.draw,
             model: args.model.clone(),
+            upsample: args.upsample,
         };
         return run_video(&job);
     }
@@ -131,7 +140,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .with_context(|| format!("loading shape predictor {}", model_path.display()))?;
     let detector = match args.face_box {
         Some(_) => None,
-        None => Some(facecap_landmarks::detect::FaceDetector::default_model().context("loading the face detector")?),
+        None => Some(
+            facecap_landmarks::detect::FaceDetector::default_model()
+                .and_then(|d| d.with_upsample(args.upsample))
+                .context("loading the face detector")?,
+        ),
     };
     let mut det_ws = detector.as_ref().map(|d| d.new_workspace());
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;

@@ -38,7 +38,9 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,
         });
-    let det = FaceDetector::default_model().context("loading the face detector")?;
+    let det = FaceDetector::default_model()
+        .and_then(|d| d.with_upsample(job.upsample))
+        .context("loading the face detector")?;
     // Unfiltered (the configuration checked against dlib on the shared clips); the One
     // Euro filter (`TrackerParams::filter`) trades accuracy on fast expressions for less jitter.
     let params = TrackerParams::default();

@@ -17,6 +17,7 @@
 //! Without `--muscles` the default 11-muscle set is placed from the mesh's landmarks. The
 //! camera is `Intrinsics::default_for_frame` (f = max(width, height)).
 
+use facecap_landmarks::detect::Upsample;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -101,6 +102,11 @@ pub struct TrackArgs {
     /// with captions. Only the model mesh is rendered, never the video frames.
     #[arg(long)]
     pub report: bool,
+    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
+    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
+    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
+    #[arg(long, value_name = "auto|N", default_value = "auto")]
+    pub upsample: Upsample,
 }
 
 /// Runs a muscle subcommand.
@@ -213,7 +219,9 @@ fn landmarks_from_video(a: &TrackArgs) -> anyhow::Result<Landmarks> {
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,
         });
-    let det = FaceDetector::default_model().context("loading the face detector")?;
+    let det = FaceDetector::default_model()
+        .and_then(|d| d.with_upsample(a.upsample))
+        .context("loading the face detector")?;
     let tracker = LandmarkTracker::new(
         det,
         sp,

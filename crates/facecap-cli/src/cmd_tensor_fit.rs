@@ -28,6 +28,7 @@
 //! Outputs `tensor.csv` (parameters) and `reprojection.csv` (per-frame RMS reprojection
 //! error in pixels: landmarks only, feature points only, all; number of live points).
 
+use facecap_landmarks::detect::Upsample;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
@@ -44,6 +45,11 @@ use nalgebra::{Point2, Point3};
 /// Options shared by `tensor fit` and `transfer`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct FitOptions {
+    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
+    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
+    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
+    #[arg(long, value_name = "auto|N", default_value = "auto")]
+    pub upsample: Upsample,
     /// Model file from `facecap tensor build`.
     #[arg(long)]
     pub model: PathBuf,
@@ -169,7 +175,7 @@ pub fn fit_params(o: &FitOptions) -> anyhow::Result<FitParams> {
 }
 
 /// Runs the 68-point tracker over a video.
-pub fn track_video(video: &Path, shape_model: Option<&Path>) -> anyhow::Result<VideoLandmarks> {
+pub fn track_video(video: &Path, shape_model: Option<&Path>, upsample: Upsample) -> anyhow::Result<VideoLandmarks> {
     use facecap_landmarks::detect::FaceDetector;
     use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
     use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
@@ -180,7 +186,9 @@ pub fn track_video(video: &Path, shape_model: Option<&Path>) -> anyhow::Result<V
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,
         });
-    let det = FaceDetector::default_model().context("loading the face detector")?;
+    let det = FaceDetector::default_model()
+        .and_then(|d| d.with_upsample(upsample))
+        .context("loading the face detector")?;
     let tracker = LandmarkTracker::new(det, sp, TrackerParams::default())?;
     let mut ws = tracker.new_workspace();
     let mut state = TrackerState::new();
@@ -282,7 +290,7 @@ pub fn fit_video(
     let params = fit_params(o)?;
     let lms = match landmarks {
         Some(csv) => landmarks_from_csv(video, csv)?,
-        None => track_video(video, o.shape_model.as_deref())?,
+        None => track_video(video, o.shape_model.as_deref(), o.upsample)?,
     };
     let records = lms.records;
     let map = LandmarkMap::from_json_file(&o.landmark_map)?;

@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use facecap_core::paths;
-use facecap_landmarks::detect::{DetectorParams, FaceDetector, Par, DLIB_FRONTAL_MODEL};
+use facecap_landmarks::detect::{DetectorParams, FaceDetector, Par, Upsample, DLIB_FRONTAL_MODEL};
 use image::{imageops, GrayImage};
 use rand::{Rng, SeedableRng};
 
@@ -68,9 +68,10 @@ fn bench(c: &mut Criterion) {
         .warm_up_time(Duration::from_millis(500));
     for (name, img) in frames() {
         for (pname, par, up) in [
-            ("seq", Par::Seq, 0u32),
-            ("rayon", Par::Rayon, 0),
-            ("seq_up1", Par::Seq, 1),
+            ("seq", Par::Seq, Upsample::Times(0)),
+            ("rayon", Par::Rayon, Upsample::Times(0)),
+            ("seq_up1", Par::Seq, Upsample::Times(1)),
+            ("seq_auto", Par::Seq, Upsample::Auto),
         ] {
             let d = det
                 .clone()

@@ -8,7 +8,7 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use facecap_core::paths;
-use facecap_landmarks::detect::{DetectorParams, FaceDetector, DLIB_FRONTAL_MODEL};
+use facecap_landmarks::detect::{DetectorParams, FaceDetector, Upsample, DLIB_FRONTAL_MODEL};
 use image::GrayImage;
 use rand::{Rng, SeedableRng};
 
@@ -46,7 +46,7 @@ fn no_allocation_per_frame_after_warm_up() {
     let det = FaceDetector::from_file(&model)
         .unwrap()
         .with_params(DetectorParams {
-            upsample: 1,
+            upsample: Upsample::Times(1),
             adjust_threshold: -1.5,
             ..Default::default()
         })

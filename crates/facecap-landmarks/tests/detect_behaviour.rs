@@ -2,7 +2,7 @@
 //! Detector behaviour on synthetic frames and parameter validation.
 
 use facecap_core::paths;
-use facecap_landmarks::detect::{DetectorParams, FaceDetector, DLIB_FRONTAL_MODEL};
+use facecap_landmarks::detect::{DetectorParams, FaceDetector, Upsample, DLIB_FRONTAL_MODEL};
 use image::GrayImage;
 
 #[test]
@@ -27,7 +27,7 @@ fn invalid_parameters_are_rejected_by_name() {
     let e = det
         .clone()
         .with_params(DetectorParams {
-            upsample: 5,
+            upsample: Upsample::Times(5),
             ..Default::default()
         })
         .unwrap_err()

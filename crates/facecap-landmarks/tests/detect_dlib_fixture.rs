@@ -6,53 +6,20 @@
 //! to grey with the integer rule `(2126 R + 7152 G + 722 B) / 10000` in both; the grey
 //! checksum stored in the fixture proves both saw the same pixels.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod detect_common;
+
+use std::path::PathBuf;
+
+use detect_common::{ffmpeg_rgb, have_ffmpeg, to_grey};
 
 use facecap_core::paths;
-use facecap_landmarks::detect::{DetectorParams, FaceDetector, Par, DLIB_FRONTAL_MODEL};
-use image::{GrayImage, RgbImage};
+use facecap_landmarks::detect::{DetectorParams, FaceDetector, Par, Upsample, DLIB_FRONTAL_MODEL};
+use image::RgbImage;
 use serde_json::Value;
 
 fn fixture() -> Value {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../testdata/dlib_hog/fixture.json");
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
-}
-
-fn ffmpeg_rgb(path: &Path, video_select: Option<(u32, u32)>, w: u32, h: u32) -> Option<Vec<RgbImage>> {
-    let mut cmd = Command::new("ffmpeg");
-    cmd.args(["-nostdin", "-loglevel", "error", "-i"]).arg(path);
-    if let Some((step, n)) = video_select {
-        cmd.args([
-            "-vf",
-            &format!("select=not(mod(n\\,{step}))"),
-            "-fps_mode",
-            "passthrough",
-            "-frames:v",
-            &n.to_string(),
-        ]);
-    }
-    cmd.args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"]);
-    let out = cmd.output().ok()?;
-    if !out.status.success() {
-        return None;
-    }
-    let sz = (w * h * 3) as usize;
-    Some(
-        out.stdout
-            .chunks_exact(sz)
-            .map(|c| RgbImage::from_raw(w, h, c.to_vec()).unwrap())
-            .collect(),
-    )
-}
-
-/// The fixture's grey rule: `(2126 R + 7152 G + 722 B) / 10000` (integer division).
-fn to_grey(rgb: &RgbImage) -> GrayImage {
-    GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
-        let p = rgb.get_pixel(x, y).0;
-        let v = (2126 * u32::from(p[0]) + 7152 * u32::from(p[1]) + 722 * u32::from(p[2])) / 10000;
-        image::Luma([v as u8])
-    })
 }
 
 struct Stats {
@@ -74,7 +41,7 @@ fn detections_match_dlib_on_shared_images_and_frames() {
         eprintln!("SKIP: detect_dlib_fixture: shared data absent");
         return;
     }
-    if Command::new("ffmpeg").arg("-version").output().is_err() {
+    if !have_ffmpeg() {
         eprintln!("SKIP: detect_dlib_fixture: ffmpeg not installed");
         return;
     }
@@ -122,7 +89,7 @@ fn detections_match_dlib_on_shared_images_and_frames() {
         );
         for run in case["runs"].as_array().unwrap() {
             let params = DetectorParams {
-                upsample: run["upsample"].as_u64().unwrap() as u32,
+                upsample: Upsample::Times(run["upsample"].as_u64().unwrap() as u32),
                 adjust_threshold: run["adjust_threshold"].as_f64().unwrap(),
                 // identical to Par::Seq (see parallel_levels_give_identical_results), faster
                 par: Par::Rayon,
@@ -206,7 +173,7 @@ fn parallel_levels_give_identical_results() {
     let seq = FaceDetector::from_file(&model)
         .unwrap()
         .with_params(DetectorParams {
-            upsample: 1,
+            upsample: Upsample::Times(1),
             adjust_threshold: -0.3,
             ..Default::default()
         })

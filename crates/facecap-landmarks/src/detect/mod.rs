@@ -46,7 +46,7 @@
 //!
 //! | name | default | meaning | range |
 //! |---|---|---|---|
-//! | `upsample` | 0 | times the image is doubled before detection (dlib's `detector(img, n)`) | 0..=4 |
+//! | `upsample` | `Times(0)` | `Times(n)`: the image is doubled n times before detection (dlib's `detector(img, n)`); `Auto`: dlib's `detector(img, 1)` with the finest levels scanned only when needed ([`Upsample`]) | `Times(0..=4)`, `Auto` |
 //! | `adjust_threshold` | 0.0 | added to every sub-detector threshold (negative finds more) | finite |
 //! | `min_size` | 0 | smallest accepted box side in input pixels | any |
 //! | `par` | `Par::Seq` | run pyramid levels sequentially or on the rayon pool | |
@@ -54,9 +54,9 @@
 //! # Example
 //!
 //! ```no_run
-//! use facecap_landmarks::detect::{FaceDetector, DetectorParams};
+//! use facecap_landmarks::detect::{FaceDetector, DetectorParams, Upsample};
 //! # fn main() -> facecap_landmarks::Result<()> {
-//! let detector = FaceDetector::default_model()?.with_params(DetectorParams { upsample: 1, ..Default::default() })?;
+//! let detector = FaceDetector::default_model()?.with_params(DetectorParams { upsample: Upsample::Auto, ..Default::default() })?;
 //! let mut ws = detector.new_workspace();
 //! let img = image::GrayImage::new(640, 480);
 //! let faces = detector.detect(&img, &mut ws)?;
@@ -103,11 +103,77 @@ pub enum Par {
     Rayon,
 }
 
+/// How often the image is doubled before detection.
+///
+/// `Times(n)` is dlib's `detector(img, n)` exactly. `Auto` gives what dlib's examples
+/// get with `detector(img, 1)` at a cost close to `Times(0)` on large images:
+///
+/// * the image is doubled once and the pyramid of the doubled image is built exactly
+///   as dlib builds it;
+/// * the finest levels, whose 80 x 80 detection window covers less than
+///   [`AUTO_MIN_FACE_FRACTION`] of the input's shorter side (and less than
+///   [`AUTO_ALWAYS_FACE_SIDE`] pixels), are skipped at first: on a 375-pixel-high
+///   photo every level is scanned (faces from 40 px), on a 480-pixel frame the finest
+///   one is skipped (faces from 48 px), from about 700 px up the four finest (faces
+///   from 83 px, about what `Times(0)` finds; those four levels hold 77 % of the
+///   doubled pyramid's pixels);
+/// * when the scanned levels find no face, the skipped levels are scanned too and the
+///   result is exactly dlib's `detector(img, 1)`.
+///
+/// Every box `Auto` returns is one of the boxes dlib's `detector(img, 1)` reports
+/// unless a skipped small box would have suppressed it (dlib's overlap rule also drops
+/// a larger box that mostly covers a higher-scoring small one).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Upsample {
+    /// Double the image this many times (0..=[`MAX_UPSAMPLE`]), as dlib does.
+    Times(u32),
+    /// The automatic rule above.
+    Auto,
+}
+
+/// `Upsample::Auto` scans a level of the doubled pyramid first when its detection
+/// window is at least this fraction of the input's shorter side ...
+pub const AUTO_MIN_FACE_FRACTION: f64 = 0.1;
+
+/// ... or at least this many input pixels (the smallest face `Times(0)` can find).
+pub const AUTO_ALWAYS_FACE_SIDE: f64 = 80.0;
+
+impl std::fmt::Display for Upsample {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Upsample::Times(n) => write!(f, "{n}"),
+            Upsample::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+impl std::str::FromStr for Upsample {
+    type Err = Error;
+
+    /// `"auto"` or a whole number `0..=MAX_UPSAMPLE`.
+    fn from_str(s: &str) -> Result<Self> {
+        let t = s.trim();
+        if t.eq_ignore_ascii_case("auto") {
+            return Ok(Upsample::Auto);
+        }
+        let bad = || Error::InvalidParameter {
+            name: "upsample",
+            value: s.to_string(),
+            expected: format!("auto or 0..={MAX_UPSAMPLE}"),
+        };
+        let n: u32 = t.parse().map_err(|_| bad())?;
+        if n > MAX_UPSAMPLE {
+            return Err(bad());
+        }
+        Ok(Upsample::Times(n))
+    }
+}
+
 /// Detection parameters (see the module table).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DetectorParams {
-    /// Number of 2x up-samplings before detection (dlib's second argument).
-    pub upsample: u32,
+    /// 2x up-samplings before detection (dlib's second argument), or the automatic rule.
+    pub upsample: Upsample,
     /// Added to each sub-detector threshold; 0 reproduces dlib's default.
     pub adjust_threshold: f64,
     /// Boxes with a side shorter than this many input pixels are dropped.
@@ -117,9 +183,11 @@ pub struct DetectorParams {
 }
 
 impl Default for DetectorParams {
+    /// dlib's own default, `detector(img)` = `detector(img, 0)`; the `facecap` commands
+    /// use [`Upsample::Auto`] unless told otherwise.
     fn default() -> Self {
         DetectorParams {
-            upsample: 0,
+            upsample: Upsample::Times(0),
             adjust_threshold: 0.0,
             min_size: 0,
             par: Par::Seq,
@@ -133,12 +201,14 @@ impl DetectorParams {
     /// # Errors
     /// [`Error::InvalidParameter`] naming `upsample` or `adjust_threshold`.
     pub fn validate(&self) -> Result<()> {
-        if self.upsample > MAX_UPSAMPLE {
-            return Err(Error::InvalidParameter {
-                name: "upsample",
-                value: self.upsample.to_string(),
-                expected: format!("0..={MAX_UPSAMPLE}"),
-            });
+        if let Upsample::Times(n) = self.upsample {
+            if n > MAX_UPSAMPLE {
+                return Err(Error::InvalidParameter {
+                    name: "upsample",
+                    value: n.to_string(),
+                    expected: format!("0..={MAX_UPSAMPLE} or auto"),
+                });
+            }
         }
         if !self.adjust_threshold.is_finite() {
             return Err(Error::InvalidParameter {
@@ -174,7 +244,7 @@ struct LevelWs {
     feats: fhog::FhogImage,
     fscratch: fhog::FhogScratch,
     sscratch: scan::ScanScratch,
-    saliency: Vec<f32>,
+    hits: Vec<scan::Hit>,
     cands: Vec<Candidate>,
 }
 
@@ -260,6 +330,18 @@ impl FaceDetector {
         Ok(self)
     }
 
+    /// The same detector with another [`Upsample`] rule (other parameters kept).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] for `Upsample::Times(n)` with `n > MAX_UPSAMPLE`.
+    pub fn with_upsample(self, upsample: Upsample) -> Result<Self> {
+        let params = DetectorParams {
+            upsample,
+            ..self.params
+        };
+        self.with_params(params)
+    }
+
     /// Current parameters.
     pub fn params(&self) -> &DetectorParams {
         &self.params
@@ -315,13 +397,17 @@ impl FaceDetector {
             return Ok(());
         }
         let p = self.params;
+        let times = match p.upsample {
+            Upsample::Times(n) => n,
+            Upsample::Auto => 1,
+        };
         // 1. up-sampling
-        let base: GrayView<'_> = if p.upsample == 0 {
+        let base: GrayView<'_> = if times == 0 {
             input
         } else {
             let [a, b] = &mut ws.up;
             pyramid::up2(input, a);
-            for _ in 1..p.upsample {
+            for _ in 1..times {
                 pyramid::up2(a.view(), b);
                 std::mem::swap(a, b);
             }
@@ -357,36 +443,26 @@ impl FaceDetector {
             let src = if l == 1 { base } else { prev[l - 1].view() };
             pyramid::down6(src, &mut rest[0]);
         }
-        // 3-5. features, scores, candidates per level
-        let pyr = &ws.pyr;
-        let work = |(l, lw): (usize, &mut LevelWs)| {
-            let img = if l == 0 { base } else { pyr[l].view() };
-            self.process_level(l, img, lw);
+        // the levels scanned first (all of them unless `Auto` skips the finest)
+        let first = match p.upsample {
+            Upsample::Times(_) => 0,
+            Upsample::Auto => self.auto_first_level(input.width, input.height).min(levels),
         };
-        match p.par {
-            Par::Seq => ws.levels[..levels].iter_mut().enumerate().for_each(work),
-            Par::Rayon => ws.levels[..levels].par_iter_mut().enumerate().for_each(work),
+        // 3-6. features, scores, candidates per level; merge and suppress
+        for lw in &mut ws.levels[..first] {
+            lw.cands.clear();
         }
-        // 6. merge in dlib's order and suppress
-        ws.all.clear();
-        for d in 0..self.banks.len() {
-            for lw in &ws.levels[..levels] {
-                ws.all.extend(lw.cands.iter().filter(|c| c.detector == d));
-            }
-        }
-        ws.all.sort_by(|a, b| b.score.total_cmp(&a.score));
-        ws.kept.clear();
-        let (iou, pc) = (m.overlap_iou_thresh, m.overlap_percent_covered_thresh);
-        for c in &ws.all {
-            if ws.kept.iter().any(|k| boxes_overlap(&k.rect, &c.rect, iou, pc)) {
-                continue;
-            }
-            ws.kept.push(*c);
+        self.scan_levels(base, first, levels, &ws.pyr, &mut ws.levels);
+        self.suppress(&ws.levels[..levels], &mut ws.all, &mut ws.kept);
+        if first > 0 && ws.kept.is_empty() {
+            // `Auto` found nothing: the skipped levels too, giving dlib's `detector(img, 1)`
+            self.scan_levels(base, 0, first, &ws.pyr, &mut ws.levels);
+            self.suppress(&ws.levels[..levels], &mut ws.all, &mut ws.kept);
         }
         // 7. back to input coordinates, size filter, largest first
         for c in &ws.kept {
-            let r = if p.upsample > 0 {
-                pyramid::rect_down2(c.rect, p.upsample)
+            let r = if times > 0 {
+                pyramid::rect_down2(c.rect, times)
             } else {
                 c.rect
             };
@@ -407,6 +483,59 @@ impl FaceDetector {
         Ok(())
     }
 
+    /// First level of the once-doubled pyramid that [`Upsample::Auto`] scans: the
+    /// finest level whose detection window, in input pixels, is at least
+    /// `min(AUTO_ALWAYS_FACE_SIDE, AUTO_MIN_FACE_FRACTION * shorter side)`.
+    fn auto_first_level(&self, width: usize, height: usize) -> usize {
+        let m = &self.model;
+        let window = ((m.fhog_window_width - 2 * m.padding) * m.cell_size) as f64;
+        let shorter = width.min(height) as f64;
+        let wanted = (AUTO_MIN_FACE_FRACTION * shorter).min(AUTO_ALWAYS_FACE_SIDE);
+        // window side in input pixels at level k: window / 2 * (6/5)^k
+        let mut side = window / 2.0;
+        let mut k = 0usize;
+        while side < wanted && k < m.max_pyramid_levels {
+            side *= 1.2;
+            k += 1;
+        }
+        k
+    }
+
+    /// Features, scores and candidates of levels `from..to` (each level's list is
+    /// replaced); levels outside the range keep their lists.
+    fn scan_levels(&self, base: GrayView<'_>, from: usize, to: usize, pyr: &[Gray], levels: &mut [LevelWs]) {
+        let work = |(i, lw): (usize, &mut LevelWs)| {
+            let l = from + i;
+            let img = if l == 0 { base } else { pyr[l].view() };
+            self.process_level(l, img, lw);
+        };
+        match self.params.par {
+            Par::Seq => levels[from..to].iter_mut().enumerate().for_each(work),
+            Par::Rayon => levels[from..to].par_iter_mut().enumerate().for_each(work),
+        }
+    }
+
+    /// Merges the candidates of `levels` in dlib's order (sub-detector, then level)
+    /// into `all` and applies dlib's non-maximum suppression into `kept`.
+    fn suppress(&self, levels: &[LevelWs], all: &mut Vec<Candidate>, kept: &mut Vec<Candidate>) {
+        let m = &self.model;
+        all.clear();
+        for d in 0..self.banks.len() {
+            for lw in levels {
+                all.extend(lw.cands.iter().filter(|c| c.detector == d));
+            }
+        }
+        all.sort_by(|a, b| b.score.total_cmp(&a.score));
+        kept.clear();
+        let (iou, pc) = (m.overlap_iou_thresh, m.overlap_percent_covered_thresh);
+        for c in all.iter() {
+            if kept.iter().any(|k| boxes_overlap(&k.rect, &c.rect, iou, pc)) {
+                continue;
+            }
+            kept.push(*c);
+        }
+    }
+
     fn process_level(&self, level: usize, img: GrayView<'_>, lw: &mut LevelWs) {
         let m = &self.model;
         let (fw, fh) = (m.fhog_window_width, m.fhog_window_height);
@@ -425,28 +554,22 @@ impl FaceDetector {
         if lw.feats.width == 0 {
             return;
         }
-        let w = lw.feats.width;
         let det_w = (fw - 2 * m.padding) as i64;
         let det_h = (fh - 2 * m.padding) as i64;
         for (d, bank) in self.banks.iter().enumerate() {
-            let Some(area) = scan::saliency(bank, &lw.feats, &mut lw.sscratch, &mut lw.saliency) else {
-                continue;
-            };
             let thresh = bank.threshold + self.params.adjust_threshold;
+            lw.hits.clear();
+            if scan::candidates(bank, &lw.feats, thresh, &mut lw.sscratch, &mut lw.hits).is_none() {
+                continue;
+            }
             let start = lw.cands.len();
-            for r in area.r0..area.r1 {
-                let row = &lw.saliency[r * w..(r + 1) * w];
-                for c in area.c0..area.c1 {
-                    let s = f64::from(row[c]);
-                    if s >= thresh {
-                        let rect = window_rect(c as i64, r as i64, det_w, det_h, m.cell_size as i64, fw, fh);
-                        lw.cands.push(Candidate {
-                            score: s - bank.threshold,
-                            detector: d,
-                            rect: pyramid::rect_up6(rect, level),
-                        });
-                    }
-                }
+            for hit in &lw.hits {
+                let rect = window_rect(hit.c as i64, hit.r as i64, det_w, det_h, m.cell_size as i64, fw, fh);
+                lw.cands.push(Candidate {
+                    score: f64::from(hit.score) - bank.threshold,
+                    detector: d,
+                    rect: pyramid::rect_up6(rect, level),
+                });
             }
             // dlib sorts each sub-detector's list by score before merging
             lw.cands[start..].sort_by(|a, b| b.score.total_cmp(&a.score));
@@ -512,9 +635,22 @@ mod tests {
     }
 
     #[test]
+    fn upsample_parses_and_prints() {
+        assert_eq!("auto".parse::<Upsample>().unwrap(), Upsample::Auto);
+        assert_eq!(" 2 ".parse::<Upsample>().unwrap(), Upsample::Times(2));
+        for bad in ["5", "-1", "x", "", "1.5"] {
+            let e = bad.parse::<Upsample>().unwrap_err().to_string();
+            assert!(e.contains("upsample"), "{bad}: {e}");
+        }
+        for u in [Upsample::Auto, Upsample::Times(0), Upsample::Times(4)] {
+            assert_eq!(u.to_string().parse::<Upsample>().unwrap(), u);
+        }
+    }
+
+    #[test]
     fn params_are_validated() {
         let bad = DetectorParams {
-            upsample: 9,
+            upsample: Upsample::Times(9),
             ..Default::default()
         };
         assert!(bad.validate().is_err());

@@ -206,11 +206,358 @@ fn simd_end(c0: usize, c1: usize) -> usize {
     c
 }
 
-/// Scratch buffers of [`saliency`].
+/// Scratch buffers of [`saliency`] and [`candidates`].
 #[derive(Debug, Clone, Default)]
 pub struct ScanScratch {
     rowpass: Vec<f32>,
     acc: Vec<f32>,
+    fast: Vec<f32>,
+}
+
+/// [`candidates`] recomputes a window's score in dlib's float association when the
+/// fast pass puts it at most this far below the threshold. The two evaluations of the
+/// same separable sum differ only by rounding (at most a few 1e-6 on real and seeded
+/// random features, `fast_scores_stay_far_within_the_recheck_margin`), so no window
+/// dlib accepts is lost.
+pub const EXACT_RECHECK_MARGIN: f64 = 1e-2;
+
+/// A window that passed the threshold: centre cell `(r, c)` and its score as dlib
+/// computes it (bit for bit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Row of the window's centre cell.
+    pub r: usize,
+    /// Column of the window's centre cell.
+    pub c: usize,
+    /// dlib's window score (before subtracting the threshold).
+    pub score: f32,
+}
+
+/// The windows of one sub-detector whose dlib score is `>= thresh`, in row-major
+/// order, appended to `out`; returns the valid area like [`saliency`].
+///
+/// Two passes instead of dlib's one: (1) all scores of the separable filters with
+/// fused multiply-adds in 8-wide vectors (AVX2 + FMA chosen at run time through
+/// `pulp`, plain scalar code otherwise), an association dlib does not use, then (2) for
+/// the few windows within [`EXACT_RECHECK_MARGIN`] of the threshold or above it, the
+/// score in dlib's association ([`exact_score_at`]), which decides and is reported. So
+/// the accepted windows and their scores are those of [`saliency`] (tests
+/// `candidates_equal_the_exact_saliency_threshold` and the dlib fixture).
+pub fn candidates(
+    bank: &FilterBank,
+    feats: &FhogImage,
+    thresh: f64,
+    scratch: &mut ScanScratch,
+    out: &mut Vec<Hit>,
+) -> Option<Area> {
+    let (w, h) = (feats.width, feats.height);
+    let (fw, fh) = (bank.fw, bank.fh);
+    if w < fw || h < fh || w == 0 || h == 0 {
+        return None;
+    }
+    if bank.use_full {
+        // not the frontal detector's case: the exact full filtering, thresholded
+        let mut sal = std::mem::take(&mut scratch.fast);
+        let area = saliency(bank, feats, scratch, &mut sal);
+        if let Some(area) = area {
+            for r in area.r0..area.r1 {
+                for c in area.c0..area.c1 {
+                    let v = sal[r * w + c];
+                    if f64::from(v) >= thresh {
+                        out.push(Hit { r, c, score: v });
+                    }
+                }
+            }
+        }
+        scratch.fast = sal;
+        return area;
+    }
+    if bank.terms.is_empty() {
+        return None;
+    }
+    let area = Area {
+        r0: fh / 2,
+        r1: h - (fh - 1) / 2,
+        c0: fw / 2,
+        c1: w - (fw - 1) / 2,
+    };
+    fast_scores_dispatch(bank, feats, area, scratch);
+    let nc = area.c1 - area.c0;
+    let stride = fast_stride(bank, nc);
+    let tail = simd_end(area.c0, area.c1);
+    let cut = thresh - EXACT_RECHECK_MARGIN;
+    for r in area.r0..area.r1 {
+        let row = &scratch.fast[(r - area.r0) * stride..(r - area.r0) * stride + nc];
+        for (j, &v) in row.iter().enumerate() {
+            if f64::from(v) >= cut {
+                let c = area.c0 + j;
+                let s = exact_score_at(bank, feats, tail, r, c);
+                if f64::from(s) >= thresh {
+                    out.push(Hit { r, c, score: s });
+                }
+            }
+        }
+    }
+    Some(area)
+}
+
+/// The score of the window centred at `(r, c)` exactly as [`saliency`] computes it
+/// (dlib's association; `tail` = first column of dlib's scalar tail). Rows of zeros are
+/// not special-cased here, which can change only the sign of an exact zero.
+pub fn exact_score_at(bank: &FilterBank, feats: &FhogImage, tail: usize, r: usize, c: usize) -> f32 {
+    let w = feats.width;
+    let (hr, hc) = (bank.fh / 2, bank.fw / 2);
+    let simd = c < tail;
+    let mut total = 0f32;
+    for (t_idx, term) in bank.terms.iter().enumerate() {
+        let plane = feats.plane(term.plane);
+        let rp = |m: usize| {
+            let base = (r - hr + m) * w + c - hc;
+            dot_dlib(simd, &term.row, |k| plane[base + k])
+        };
+        let v = dot_dlib(simd, &term.col, rp);
+        total = if t_idx == 0 { v } else { total + v };
+    }
+    total
+}
+
+/// Fills `scratch.fast` (rows `area.r0..r1` x columns `area.c0..c1`, compact, row
+/// stride [`fast_stride`]) with the fast scores: the AVX2 + FMA kernel for 10-tap
+/// filters when the CPU has them ([`FastV3`]), else the generic `pulp` pass.
+fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratch: &mut ScanScratch) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v3) = pulp::x86::V3::try_new() {
+        if bank.fw == TAPS && bank.fh == TAPS && area.c1 - area.c0 >= V3_LANES {
+            pulp::Simd::vectorize(
+                v3,
+                FastV3 {
+                    v3,
+                    bank,
+                    feats,
+                    area,
+                    rowpass: &mut scratch.rowpass,
+                    out: &mut scratch.fast,
+                },
+            );
+            return;
+        }
+    }
+    pulp::Arch::new().dispatch(FastScores {
+        bank,
+        feats,
+        area,
+        rowpass: &mut scratch.rowpass,
+        out: &mut scratch.fast,
+    });
+}
+
+/// Row stride of `scratch.fast` for an area `nc` columns wide: `nc` rounded up to
+/// whole 8-lane blocks when [`FastV3`] runs, else `nc`.
+fn fast_stride(bank: &FilterBank, nc: usize) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if pulp::x86::V3::is_available() && bank.fw == TAPS && bank.fh == TAPS && nc >= V3_LANES {
+        return nc.div_ceil(V3_LANES) * V3_LANES;
+    }
+    let _ = bank;
+    nc
+}
+
+/// Filter taps the AVX2 kernel is specialised for (dlib's 10 x 10 cell windows).
+const TAPS: usize = 10;
+
+/// f32 lanes of an AVX register.
+const V3_LANES: usize = 8;
+
+/// The fast pass for 10 x 10 filters on AVX2 + FMA: the same sums as [`FastScores`],
+/// with the ten taps unrolled over fixed-size windows (no bounds checks in the inner
+/// loops), rows of `rowpass` and `out` padded to whole 8-lane blocks, and the row
+/// pass's last block overlapping the one before it (its writes are idempotent).
+#[cfg(target_arch = "x86_64")]
+struct FastV3<'a> {
+    v3: pulp::x86::V3,
+    bank: &'a FilterBank,
+    feats: &'a FhogImage,
+    area: Area,
+    rowpass: &'a mut Vec<f32>,
+    out: &'a mut Vec<f32>,
+}
+
+/// Eight floats from `s[at..]` as one vector.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn ld8(s: &[f32], at: usize) -> pulp::f32x8 {
+    let s = &s[at..at + V3_LANES];
+    bytemuck::cast([s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]])
+}
+
+/// One vector into `d[at..at + 8]`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn st8(d: &mut [f32], at: usize, v: pulp::f32x8) {
+    let a: [f32; V3_LANES] = bytemuck::cast(v);
+    d[at..at + V3_LANES].copy_from_slice(&a);
+}
+
+#[cfg(target_arch = "x86_64")]
+impl pulp::WithSimd for FastV3<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let FastV3 {
+            v3,
+            bank,
+            feats,
+            area,
+            rowpass,
+            out,
+        } = self;
+        let (w, h) = (feats.width, feats.height);
+        let (hr, hc) = (bank.fh / 2, bank.fw / 2);
+        let nc = area.c1 - area.c0;
+        let nr = area.r1 - area.r0;
+        let stride = nc.div_ceil(V3_LANES) * V3_LANES;
+        out.clear();
+        out.resize(nr * stride, 0.0);
+        rowpass.clear();
+        rowpass.resize(h * stride, 0.0);
+        let span = V3_LANES + TAPS - 1;
+        let zero = v3.splat_f32x8(0.0);
+        for term in &bank.terms {
+            let plane = feats.plane(term.plane);
+            let fr: [pulp::f32x8; TAPS] = std::array::from_fn(|k| v3.splat_f32x8(term.row[k]));
+            let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
+            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k]
+            for y in 0..h {
+                let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
+                let dst = &mut rowpass[y * stride..y * stride + nc];
+                let mut j = 0;
+                while j < nc {
+                    let jj = j.min(nc - V3_LANES);
+                    let win = &src[jj..jj + span];
+                    let mut acc = zero;
+                    for k in 0..TAPS {
+                        acc = v3.mul_add_f32x8(ld8(win, k), fr[k], acc);
+                    }
+                    st8(dst, jj, acc);
+                    j += V3_LANES;
+                }
+            }
+            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
+            for r in 0..nr {
+                let top = area.r0 + r - hr;
+                let rows = &rowpass[top * stride..(top + TAPS) * stride];
+                let o = &mut out[r * stride..(r + 1) * stride];
+                for j in (0..stride).step_by(V3_LANES) {
+                    let mut acc = ld8(o, j);
+                    for m in 0..TAPS {
+                        acc = v3.mul_add_f32x8(ld8(rows, m * stride + j), fc[m], acc);
+                    }
+                    st8(o, j, acc);
+                }
+            }
+        }
+    }
+}
+
+/// The fast pass as a `pulp` operation (compiled for the dispatched CPU features).
+struct FastScores<'a> {
+    bank: &'a FilterBank,
+    feats: &'a FhogImage,
+    area: Area,
+    rowpass: &'a mut Vec<f32>,
+    out: &'a mut Vec<f32>,
+}
+
+/// `lanes` floats from the start of `s` as one vector (unaligned load).
+#[inline(always)]
+fn load<S: pulp::Simd>(s: &[f32]) -> S::f32s {
+    bytemuck::pod_read_unaligned(bytemuck::cast_slice(s))
+}
+
+/// One vector into the start of `d`.
+#[inline(always)]
+fn store<S: pulp::Simd>(d: &mut [f32], v: S::f32s) {
+    d.copy_from_slice(bytemuck::cast_slice(std::slice::from_ref(&v)));
+}
+
+impl pulp::WithSimd for FastScores<'_> {
+    type Output = ();
+
+    /// `s(r, c) = sum_terms sum_m col[m] sum_k row[k] H[r - hr + m][c - hc + k]`: per
+    /// term a row pass into `rowpass`, then a column pass added into `out`, each on
+    /// blocks of one vector of output columns kept in a register across the taps
+    /// (`mul_add_e`: fused where the CPU has FMA), a scalar loop for the last columns.
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, simd: S) {
+        let FastScores {
+            bank,
+            feats,
+            area,
+            rowpass,
+            out,
+        } = self;
+        let lanes = std::mem::size_of::<S::f32s>() / std::mem::size_of::<f32>();
+        let (w, h) = (feats.width, feats.height);
+        let (hr, hc) = (bank.fh / 2, bank.fw / 2);
+        let nc = area.c1 - area.c0;
+        let nr = area.r1 - area.r0;
+        out.clear();
+        out.resize(nr * nc, 0.0);
+        rowpass.clear();
+        rowpass.resize(h * nc, 0.0);
+        let blocks = nc / lanes * lanes;
+        for term in &bank.terms {
+            let plane = feats.plane(term.plane);
+            let (fr, fcol) = (&term.row[..], &term.col[..]);
+            let span = lanes + fr.len() - 1;
+            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k]
+            for y in 0..h {
+                let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
+                let dst = &mut rowpass[y * nc..(y + 1) * nc];
+                let mut j = 0;
+                while j < blocks {
+                    let win = &src[j..j + span];
+                    let mut acc = simd.splat_f32s(0.0);
+                    for (k, &f) in fr.iter().enumerate() {
+                        acc = simd.mul_add_e_f32s(load::<S>(&win[k..k + lanes]), simd.splat_f32s(f), acc);
+                    }
+                    store::<S>(&mut dst[j..j + lanes], acc);
+                    j += lanes;
+                }
+                for j in blocks..nc {
+                    let mut a = 0f32;
+                    for (k, &f) in fr.iter().enumerate() {
+                        a += src[j + k] * f;
+                    }
+                    dst[j] = a;
+                }
+            }
+            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
+            for r in 0..nr {
+                let top = area.r0 + r - hr;
+                let rows = &rowpass[top * nc..(top + fcol.len()) * nc];
+                let o = &mut out[r * nc..(r + 1) * nc];
+                let mut j = 0;
+                while j < blocks {
+                    let mut acc = load::<S>(&o[j..j + lanes]);
+                    for (m, &f) in fcol.iter().enumerate() {
+                        let at = m * nc + j;
+                        acc = simd.mul_add_e_f32s(load::<S>(&rows[at..at + lanes]), simd.splat_f32s(f), acc);
+                    }
+                    store::<S>(&mut o[j..j + lanes], acc);
+                    j += lanes;
+                }
+                for j in blocks..nc {
+                    let mut a = o[j];
+                    for (m, &f) in fcol.iter().enumerate() {
+                        a += rows[m * nc + j] * f;
+                    }
+                    o[j] = a;
+                }
+            }
+        }
+    }
 }
 
 /// The score image of one sub-detector on one fHOG image, written to `out`
@@ -557,6 +904,108 @@ mod tests {
                         lit[r * w + c].to_bits(),
                         "seed {seed} ({r},{c})"
                     );
+                }
+            }
+        }
+    }
+
+    /// The exact scores of `saliency` at or above `thresh`, as `Hit`s.
+    fn exact_hits(bank: &FilterBank, feats: &FhogImage, thresh: f64) -> Vec<Hit> {
+        let mut scratch = ScanScratch::default();
+        let mut sal = Vec::new();
+        let area = saliency(bank, feats, &mut scratch, &mut sal).unwrap();
+        let mut hits = Vec::new();
+        for r in area.r0..area.r1 {
+            for c in area.c0..area.c1 {
+                let v = sal[r * feats.width + c];
+                if f64::from(v) >= thresh {
+                    hits.push(Hit { r, c, score: v });
+                }
+            }
+        }
+        hits
+    }
+
+    #[test]
+    fn exact_score_at_equals_saliency_bit_for_bit() {
+        for (seed, w, h) in [(11u64, 40usize, 30usize), (12, 10, 10), (13, 27, 19), (14, 61, 12)] {
+            let (weights, feats) = random_case(seed, w, h);
+            let bank = FilterBank::new(&weights, 10, 10);
+            let mut scratch = ScanScratch::default();
+            let mut sal = Vec::new();
+            let area = saliency(&bank, &feats, &mut scratch, &mut sal).unwrap();
+            let tail = simd_end(area.c0, area.c1);
+            for r in area.r0..area.r1 {
+                for c in area.c0..area.c1 {
+                    let e = exact_score_at(&bank, &feats, tail, r, c);
+                    assert_eq!(e.to_bits(), sal[r * w + c].to_bits(), "seed {seed} ({r},{c})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fast_scores_stay_far_within_the_recheck_margin() {
+        // both the dispatched (AVX2 + FMA where present) and the portable pass
+        let mut worst = 0f64;
+        for (seed, w, h) in [(21u64, 87usize, 67usize), (22, 10, 10), (23, 33, 19), (24, 120, 15)] {
+            let (weights, feats) = random_case(seed, w, h);
+            let bank = FilterBank::new(&weights, 10, 10);
+            let mut scratch = ScanScratch::default();
+            let mut sal = Vec::new();
+            let area = saliency(&bank, &feats, &mut scratch, &mut sal).unwrap();
+            let nc = area.c1 - area.c0;
+            for portable in [false, true] {
+                let stride = if portable { nc } else { fast_stride(&bank, nc) };
+                if portable {
+                    let op = FastScores {
+                        bank: &bank,
+                        feats: &feats,
+                        area,
+                        rowpass: &mut scratch.rowpass,
+                        out: &mut scratch.fast,
+                    };
+                    pulp::Simd::vectorize(pulp::Scalar, op);
+                } else {
+                    fast_scores_dispatch(&bank, &feats, area, &mut scratch);
+                }
+                for r in area.r0..area.r1 {
+                    for c in area.c0..area.c1 {
+                        let d =
+                            f64::from(scratch.fast[(r - area.r0) * stride + c - area.c0]) - f64::from(sal[r * w + c]);
+                        worst = worst.max(d.abs());
+                    }
+                }
+            }
+        }
+        assert!(worst < EXACT_RECHECK_MARGIN / 100.0, "fast vs exact {worst:e}");
+    }
+
+    #[test]
+    fn candidates_equal_the_exact_saliency_threshold() {
+        for (seed, w, h) in [(31u64, 87usize, 67usize), (32, 10, 10), (33, 45, 40)] {
+            let (weights, feats) = random_case(seed, w, h);
+            let bank = FilterBank::new(&weights, 10, 10);
+            let mut scratch = ScanScratch::default();
+            let mut sal = Vec::new();
+            let area = saliency(&bank, &feats, &mut scratch, &mut sal).unwrap();
+            // thresholds at several quantiles of the scores, so some windows pass and
+            // some sit just below
+            let mut vals: Vec<f32> = (area.r0..area.r1)
+                .flat_map(|r| (area.c0..area.c1).map(move |c| (r, c)))
+                .map(|(r, c)| sal[r * w + c])
+                .collect();
+            vals.sort_by(f32::total_cmp);
+            for q in [0.0, 0.5, 0.9, 0.99, 1.0] {
+                let i = ((vals.len() - 1) as f64 * q) as usize;
+                for thresh in [f64::from(vals[i]), f64::from(vals[i]) + 1e-7, f64::from(vals[i]) - 1e-3] {
+                    let mut hits = Vec::new();
+                    candidates(&bank, &feats, thresh, &mut scratch, &mut hits).unwrap();
+                    let want = exact_hits(&bank, &feats, thresh);
+                    assert_eq!(hits.len(), want.len(), "seed {seed} q {q}");
+                    for (a, b) in hits.iter().zip(&want) {
+                        assert_eq!((a.r, a.c, a.score.to_bits()), (b.r, b.c, b.score.to_bits()));
+                    }
                 }
             }
         }
