@@ -1,0 +1,487 @@
+//! Float32 NHWC kernels of the interpreter, each with a slow obvious reference
+//! (`reference` module) that the tests compare against on seeded random inputs.
+//!
+//! Layouts (TFLite's): activations `[1, H, W, C]` row-major; convolution filters
+//! `[Cout, KH, KW, Cin]`; depthwise filters `[1, KH, KW, C]`; biases `[Cout]`.
+//!
+//! Convolution is a GEMM: `out[p, co] = bias[co] + sum_k A[p, k] W[k, co]` where `A` is
+//! the input itself for 1x1 stride-1 convolutions and an im2col matrix
+//! (`k = (ky * KW + kx) * Cin + ci`) otherwise. `W` is packed at load into column panels
+//! of [`NR`] output channels (`[panel][k][NR]`, zero-padded), and a `MR x NR` register
+//! block of accumulators runs over `k` with fused multiply-adds. The kernels are written
+//! as plain loops over fixed-size arrays and are compiled inside a `pulp` dispatch, so
+//! they vectorise with AVX2/FMA where the CPU has them (the interpreter calls them from
+//! one [`pulp::WithSimd`] body per inference).
+
+use super::model::{Activation, Window};
+
+/// Output channels per packed panel (two 8-lane registers).
+pub const NR: usize = 16;
+/// Rows (output pixels) per register block.
+pub const MR: usize = 4;
+
+/// Convolution weights packed for [`gemm`].
+#[derive(Debug, Clone)]
+pub struct Packed {
+    /// Reduction length (`KH * KW * Cin`).
+    pub k: usize,
+    /// Output channels.
+    pub n: usize,
+    /// `[n.div_ceil(NR)][k][NR]`.
+    pub data: Vec<f32>,
+    /// Bias, zero-padded to a multiple of `NR`.
+    pub bias: Vec<f32>,
+}
+
+impl Packed {
+    /// Packs OHWI filters (`n` rows of `k` values) and an optional bias.
+    pub fn new(filter: &[f32], bias: Option<&[f32]>, n: usize, k: usize) -> Packed {
+        let panels = n.div_ceil(NR);
+        let mut data = vec![0.0; panels * k * NR];
+        for co in 0..n {
+            let (p, j) = (co / NR, co % NR);
+            for kk in 0..k {
+                data[(p * k + kk) * NR + j] = filter[co * k + kk];
+            }
+        }
+        let mut b = vec![0.0; panels * NR];
+        if let Some(bias) = bias {
+            b[..n].copy_from_slice(&bias[..n]);
+        }
+        Packed { k, n, data, bias: b }
+    }
+}
+
+#[inline(always)]
+fn micro<const M: usize>(
+    a: &[f32],
+    lda: usize,
+    panel: &[f32],
+    bias: &[f32],
+    act: Activation,
+    out: &mut [f32],
+    ldo: usize,
+    ncols: usize,
+) {
+    let mut acc = [[0.0f32; NR]; M];
+    let mut b = [0.0f32; NR];
+    b.copy_from_slice(&bias[..NR]);
+    for row in acc.iter_mut() {
+        *row = b;
+    }
+    let k = panel.len() / NR;
+    let rows: [&[f32]; M] = std::array::from_fn(|r| &a[r * lda..r * lda + k]);
+    for (kk, w) in panel.chunks_exact(NR).enumerate() {
+        let mut wv = [0.0f32; NR];
+        wv.copy_from_slice(w);
+        for r in 0..M {
+            let x = rows[r][kk];
+            for j in 0..NR {
+                acc[r][j] = x.mul_add(wv[j], acc[r][j]);
+            }
+        }
+    }
+    for (r, row) in acc.iter().enumerate() {
+        let o = &mut out[r * ldo..r * ldo + ncols];
+        for (dst, &v) in o.iter_mut().zip(row.iter()) {
+            *dst = act.apply(v);
+        }
+    }
+}
+
+/// `out[p * n + co] = act(bias[co] + sum_k a[p * k + kk] * W[kk, co])` for `rows` rows.
+#[inline(always)]
+pub fn gemm(a: &[f32], rows: usize, w: &Packed, act: Activation, out: &mut [f32]) {
+    let (k, n) = (w.k, w.n);
+    debug_assert!(a.len() >= rows * k && out.len() >= rows * n);
+    let panels = n.div_ceil(NR);
+    let mut p = 0;
+    while p < rows {
+        let m = (rows - p).min(MR);
+        let a_blk = &a[p * k..];
+        for pi in 0..panels {
+            let panel = &w.data[pi * k * NR..(pi + 1) * k * NR];
+            let bias = &w.bias[pi * NR..(pi + 1) * NR];
+            let c0 = pi * NR;
+            let ncols = (n - c0).min(NR);
+            let o = &mut out[p * n + c0..];
+            match m {
+                4 => micro::<4>(a_blk, k, panel, bias, act, o, n, ncols),
+                3 => micro::<3>(a_blk, k, panel, bias, act, o, n, ncols),
+                2 => micro::<2>(a_blk, k, panel, bias, act, o, n, ncols),
+                _ => micro::<1>(a_blk, k, panel, bias, act, o, n, ncols),
+            }
+        }
+        p += m;
+    }
+}
+
+/// Geometry of one window operator on one input, resolved at load.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Geom {
+    /// Input height, width, channels.
+    pub ih: usize,
+    /// Input width.
+    pub iw: usize,
+    /// Input channels.
+    pub ic: usize,
+    /// Output height.
+    pub oh: usize,
+    /// Output width.
+    pub ow: usize,
+    /// Padding before, top.
+    pub pt: usize,
+    /// Padding before, left.
+    pub pl: usize,
+    /// The window.
+    pub win: Window,
+}
+
+impl Geom {
+    /// Resolves output size and padding; `None` when the window does not fit.
+    pub fn new(ih: usize, iw: usize, ic: usize, win: Window) -> Option<Geom> {
+        let (oh, pt) = Window::out_and_pad(ih, win.kh, win.sh, win.dh, win.padding)?;
+        let (ow, pl) = Window::out_and_pad(iw, win.kw, win.sw, win.dw, win.padding)?;
+        Some(Geom {
+            ih,
+            iw,
+            ic,
+            oh,
+            ow,
+            pt,
+            pl,
+            win,
+        })
+    }
+    /// Input row for output row `oy` and tap `ky`, if inside the image.
+    #[inline(always)]
+    fn iy(&self, oy: usize, ky: usize) -> Option<usize> {
+        (oy * self.win.sh + ky * self.win.dh)
+            .checked_sub(self.pt)
+            .filter(|&y| y < self.ih)
+    }
+    #[inline(always)]
+    fn ix(&self, ox: usize, kx: usize) -> Option<usize> {
+        (ox * self.win.sw + kx * self.win.dw)
+            .checked_sub(self.pl)
+            .filter(|&x| x < self.iw)
+    }
+    /// Whether the window is a plain 1x1 stride-1 convolution (GEMM on the input).
+    pub fn is_pointwise(&self) -> bool {
+        self.win.kh == 1 && self.win.kw == 1 && self.win.sh == 1 && self.win.sw == 1 && self.pt == 0 && self.pl == 0
+    }
+    /// im2col length for this geometry.
+    pub fn im2col_len(&self) -> usize {
+        self.oh * self.ow * self.win.kh * self.win.kw * self.ic
+    }
+}
+
+/// Fills `col` (`[oh * ow][kh * kw * ic]`) with the input patches, zeros outside.
+#[inline(always)]
+pub fn im2col(input: &[f32], g: &Geom, col: &mut [f32]) {
+    let c = g.ic;
+    let kk = g.win.kh * g.win.kw * c;
+    for oy in 0..g.oh {
+        for ox in 0..g.ow {
+            let row = &mut col[(oy * g.ow + ox) * kk..(oy * g.ow + ox + 1) * kk];
+            for ky in 0..g.win.kh {
+                for kx in 0..g.win.kw {
+                    let dst = &mut row[(ky * g.win.kw + kx) * c..(ky * g.win.kw + kx + 1) * c];
+                    match (g.iy(oy, ky), g.ix(ox, kx)) {
+                        (Some(iy), Some(ix)) => {
+                            dst.copy_from_slice(&input[(iy * g.iw + ix) * c..(iy * g.iw + ix + 1) * c])
+                        }
+                        _ => dst.fill(0.0),
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Depthwise convolution (depth multiplier 1): filter `[kh * kw][c]`, bias `[c]`.
+#[inline(always)]
+pub fn depthwise(input: &[f32], g: &Geom, filter: &[f32], bias: &[f32], act: Activation, out: &mut [f32]) {
+    let c = g.ic;
+    for oy in 0..g.oh {
+        for ox in 0..g.ow {
+            let o = &mut out[(oy * g.ow + ox) * c..(oy * g.ow + ox + 1) * c];
+            o.copy_from_slice(&bias[..c]);
+            for ky in 0..g.win.kh {
+                let Some(iy) = g.iy(oy, ky) else { continue };
+                for kx in 0..g.win.kw {
+                    let Some(ix) = g.ix(ox, kx) else { continue };
+                    let ip = &input[(iy * g.iw + ix) * c..(iy * g.iw + ix + 1) * c];
+                    let wp = &filter[(ky * g.win.kw + kx) * c..(ky * g.win.kw + kx + 1) * c];
+                    for ((d, &x), &w) in o.iter_mut().zip(ip).zip(wp) {
+                        *d = x.mul_add(w, *d);
+                    }
+                }
+            }
+            if act != Activation::None {
+                for d in o.iter_mut() {
+                    *d = act.apply(*d);
+                }
+            }
+        }
+    }
+}
+
+/// Max pooling (padding taps are ignored, as in TFLite).
+#[inline(always)]
+pub fn max_pool(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
+    let c = g.ic;
+    for oy in 0..g.oh {
+        for ox in 0..g.ow {
+            let o = &mut out[(oy * g.ow + ox) * c..(oy * g.ow + ox + 1) * c];
+            o.fill(f32::NEG_INFINITY);
+            for ky in 0..g.win.kh {
+                let Some(iy) = g.iy(oy, ky) else { continue };
+                for kx in 0..g.win.kw {
+                    let Some(ix) = g.ix(ox, kx) else { continue };
+                    let ip = &input[(iy * g.iw + ix) * c..(iy * g.iw + ix + 1) * c];
+                    for (d, &x) in o.iter_mut().zip(ip) {
+                        *d = d.max(x);
+                    }
+                }
+            }
+            for d in o.iter_mut() {
+                *d = act.apply(*d);
+            }
+        }
+    }
+}
+
+/// Zero padding of a `[n, h, w, c]` tensor; `pads[axis] = [before, after]`.
+#[inline(always)]
+pub fn pad4(input: &[f32], shape: [usize; 4], pads: [[usize; 2]; 4], out: &mut [f32]) {
+    let [n, h, w, c] = shape;
+    let oh = h + pads[1][0] + pads[1][1];
+    let ow = w + pads[2][0] + pads[2][1];
+    let oc = c + pads[3][0] + pads[3][1];
+    out.fill(0.0);
+    for b in 0..n {
+        for y in 0..h {
+            for x in 0..w {
+                let src = ((b * h + y) * w + x) * c;
+                let dst = (((b + pads[0][0]) * oh + y + pads[1][0]) * ow + x + pads[2][0]) * oc + pads[3][0];
+                out[dst..dst + c].copy_from_slice(&input[src..src + c]);
+            }
+        }
+    }
+}
+
+/// Element-wise sum with a fused activation.
+#[inline(always)]
+pub fn add(a: &[f32], b: &[f32], act: Activation, out: &mut [f32]) {
+    for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
+        *o = act.apply(x + y);
+    }
+}
+
+/// `max(x, 0)`.
+#[inline(always)]
+pub fn relu(a: &[f32], out: &mut [f32]) {
+    for (o, &x) in out.iter_mut().zip(a) {
+        *o = x.max(0.0);
+    }
+}
+
+/// Parametric ReLU with a per-channel slope: `x >= 0 ? x : alpha[c] * x`.
+#[inline(always)]
+pub fn prelu(a: &[f32], alpha: &[f32], out: &mut [f32]) {
+    let c = alpha.len();
+    for (o, x) in out.chunks_exact_mut(c).zip(a.chunks_exact(c)) {
+        for ((d, &v), &s) in o.iter_mut().zip(x).zip(alpha) {
+            *d = if v >= 0.0 { v } else { v * s };
+        }
+    }
+}
+
+/// `1 / (1 + exp(-x))`.
+#[inline(always)]
+pub fn logistic(a: &[f32], out: &mut [f32]) {
+    for (o, &x) in out.iter_mut().zip(a) {
+        *o = 1.0 / (1.0 + (-x).exp());
+    }
+}
+
+/// Slow, obvious implementations the fast kernels are tested against.
+pub mod reference {
+    use super::super::model::Activation;
+    use super::Geom;
+
+    /// Direct convolution with OHWI filters.
+    pub fn conv(input: &[f32], g: &Geom, filter: &[f32], bias: Option<&[f32]>, oc: usize, act: Activation) -> Vec<f32> {
+        let (kh, kw, ic) = (g.win.kh, g.win.kw, g.ic);
+        let mut out = vec![0.0; g.oh * g.ow * oc];
+        for oy in 0..g.oh {
+            for ox in 0..g.ow {
+                for co in 0..oc {
+                    let mut s = bias.map_or(0.0, |b| b[co]) as f64;
+                    for ky in 0..kh {
+                        for kx in 0..kw {
+                            let iy = (oy * g.win.sh + ky * g.win.dh) as isize - g.pt as isize;
+                            let ix = (ox * g.win.sw + kx * g.win.dw) as isize - g.pl as isize;
+                            if iy < 0 || ix < 0 || iy >= g.ih as isize || ix >= g.iw as isize {
+                                continue;
+                            }
+                            for ci in 0..ic {
+                                let x = input[((iy as usize) * g.iw + ix as usize) * ic + ci];
+                                let w = filter[((co * kh + ky) * kw + kx) * ic + ci];
+                                s += (x * w) as f64;
+                            }
+                        }
+                    }
+                    out[(oy * g.ow + ox) * oc + co] = act.apply(s as f32);
+                }
+            }
+        }
+        out
+    }
+
+    /// Direct depthwise convolution (`[1, KH, KW, C]` filters).
+    pub fn depthwise(input: &[f32], g: &Geom, filter: &[f32], bias: &[f32], act: Activation) -> Vec<f32> {
+        let c = g.ic;
+        let mut out = vec![0.0; g.oh * g.ow * c];
+        for oy in 0..g.oh {
+            for ox in 0..g.ow {
+                for ch in 0..c {
+                    let mut s = bias[ch] as f64;
+                    for ky in 0..g.win.kh {
+                        for kx in 0..g.win.kw {
+                            let iy = (oy * g.win.sh + ky * g.win.dh) as isize - g.pt as isize;
+                            let ix = (ox * g.win.sw + kx * g.win.dw) as isize - g.pl as isize;
+                            if iy < 0 || ix < 0 || iy >= g.ih as isize || ix >= g.iw as isize {
+                                continue;
+                            }
+                            s += (input[((iy as usize) * g.iw + ix as usize) * c + ch]
+                                * filter[(ky * g.win.kw + kx) * c + ch]) as f64;
+                        }
+                    }
+                    out[(oy * g.ow + ox) * c + ch] = act.apply(s as f32);
+                }
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::model::Padding;
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn rnd(rng: &mut ChaCha8Rng, n: usize) -> Vec<f32> {
+        (0..n).map(|_| rng.random_range(-1.0f32..1.0)).collect()
+    }
+
+    fn max_diff(a: &[f32], b: &[f32]) -> f32 {
+        assert_eq!(a.len(), b.len());
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    }
+
+    #[test]
+    fn conv_fast_matches_reference_on_random_shapes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(16);
+        for case in 0..60 {
+            let k = [1usize, 2, 3, 5][case % 4];
+            let s = 1 + (case / 4) % 2;
+            let padding = if case % 3 == 0 { Padding::Valid } else { Padding::Same };
+            let (ih, iw) = (rng.random_range(k..12), rng.random_range(k..12));
+            let ic = rng.random_range(1..20);
+            let oc = rng.random_range(1..40);
+            let win = Window {
+                kh: k,
+                kw: k,
+                sh: s,
+                sw: s,
+                dh: 1,
+                dw: 1,
+                padding,
+            };
+            let Some(g) = Geom::new(ih, iw, ic, win) else { continue };
+            let input = rnd(&mut rng, ih * iw * ic);
+            let filter = rnd(&mut rng, oc * k * k * ic);
+            let bias = rnd(&mut rng, oc);
+            let act = if case % 2 == 0 {
+                Activation::Relu
+            } else {
+                Activation::None
+            };
+            let want = reference::conv(&input, &g, &filter, Some(&bias), oc, act);
+            let packed = Packed::new(&filter, Some(&bias), oc, k * k * ic);
+            let mut got = vec![0.0; g.oh * g.ow * oc];
+            if g.is_pointwise() {
+                gemm(&input, g.oh * g.ow, &packed, act, &mut got);
+            } else {
+                let mut col = vec![0.0; g.im2col_len()];
+                im2col(&input, &g, &mut col);
+                gemm(&col, g.oh * g.ow, &packed, act, &mut got);
+            }
+            let d = max_diff(&got, &want);
+            assert!(d < 1e-4, "case {case}: max difference {d}");
+        }
+    }
+
+    #[test]
+    fn depthwise_fast_matches_reference_on_random_shapes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        for case in 0..40 {
+            let k = [3usize, 5, 2][case % 3];
+            let s = 1 + case % 2;
+            let padding = if case % 4 == 0 { Padding::Valid } else { Padding::Same };
+            let (ih, iw) = (rng.random_range(k..14), rng.random_range(k..14));
+            let c = rng.random_range(1..50);
+            let win = Window {
+                kh: k,
+                kw: k,
+                sh: s,
+                sw: s,
+                dh: 1,
+                dw: 1,
+                padding,
+            };
+            let Some(g) = Geom::new(ih, iw, c, win) else { continue };
+            let input = rnd(&mut rng, ih * iw * c);
+            let filter = rnd(&mut rng, k * k * c);
+            let bias = rnd(&mut rng, c);
+            let want = reference::depthwise(&input, &g, &filter, &bias, Activation::Relu6);
+            let mut got = vec![0.0; g.oh * g.ow * c];
+            depthwise(&input, &g, &filter, &bias, Activation::Relu6, &mut got);
+            let d = max_diff(&got, &want);
+            assert!(d < 1e-5, "case {case}: max difference {d}");
+        }
+    }
+
+    #[test]
+    fn pad_and_pool_small_cases() {
+        // 1x2x2x1 -> pad 1 everywhere spatially and 1 channel after.
+        let input = [1.0, 2.0, 3.0, 4.0];
+        let mut out = vec![-1.0; 4 * 4 * 2];
+        pad4(&input, [1, 2, 2, 1], [[0, 0], [1, 1], [1, 1], [0, 1]], &mut out);
+        assert_eq!(out[(4 + 1) * 2], 1.0);
+        assert_eq!(out[(2 * 4 + 2) * 2], 4.0);
+        assert_eq!(out.iter().filter(|&&v| v != 0.0).count(), 4);
+        let g = Geom::new(
+            4,
+            4,
+            2,
+            Window {
+                kh: 2,
+                kw: 2,
+                sh: 2,
+                sw: 2,
+                dh: 1,
+                dw: 1,
+                padding: Padding::Valid,
+            },
+        )
+        .unwrap_or_else(|| unreachable!());
+        let mut pooled = vec![0.0; 2 * 2 * 2];
+        max_pool(&out, &g, Activation::None, &mut pooled);
+        assert_eq!(pooled, vec![1.0, 0.0, 2.0, 0.0, 3.0, 0.0, 4.0, 0.0]);
+    }
+}
