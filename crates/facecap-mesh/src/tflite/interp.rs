@@ -21,6 +21,94 @@ fn bad(reason: impl Into<String>) -> Error {
     Error::Model { reason: reason.into() }
 }
 
+/// The operators folded into a convolution's epilogue (see [`kernels::Epilogue`]).
+#[derive(Debug, Clone)]
+struct Fused {
+    act: Activation,
+    residual: Option<usize>,
+    post: FusedPost,
+}
+
+#[derive(Debug, Clone)]
+enum FusedPost {
+    None,
+    Relu,
+    Prelu(Vec<f32>),
+}
+
+/// A convolution absorbing a following `ADD` (residual) and `RELU` / `PRELU`: the op
+/// indices absorbed, the residual tensor, the post-activation op and the final output.
+#[derive(Debug, Clone, Default)]
+struct Fusion {
+    absorbed: Vec<usize>,
+    residual: Option<usize>,
+    post_op: Option<usize>,
+    output: usize,
+}
+
+/// Finds, for every convolution without a fused activation, the chain
+/// `conv -> ADD(conv, r) -> RELU|PRELU` (or `conv -> RELU|PRELU`) where each
+/// intermediate tensor is read only by the next operator and is not a graph output.
+fn plan_fusions(graph: &Graph) -> Vec<Option<Fusion>> {
+    let t = &graph.tensors;
+    let mut readers = vec![0usize; t.len()];
+    for op in &graph.ops {
+        for i in op.inputs() {
+            readers[i] += 1;
+        }
+    }
+    for &o in &graph.outputs {
+        readers[o] += 1000;
+    }
+    let ops = &graph.ops;
+    let mut out: Vec<Option<Fusion>> = vec![None; ops.len()];
+    let mut k = 0;
+    while k < ops.len() {
+        let conv_out = match &ops[k] {
+            Op::Conv2d { output, act, .. } | Op::DepthwiseConv2d { output, act, .. } if *act == Activation::None => {
+                Some(*output)
+            }
+            _ => None,
+        };
+        let Some(mut cur) = conv_out else {
+            k += 1;
+            continue;
+        };
+        let mut f = Fusion {
+            output: cur,
+            ..Default::default()
+        };
+        let mut next = k + 1;
+        if readers[cur] == 1 {
+            if let Some(Op::Add { a, b, output, act }) = ops.get(next) {
+                if *act == Activation::None && a != b && (*a == cur || *b == cur) {
+                    f.residual = Some(if *a == cur { *b } else { *a });
+                    f.absorbed.push(next);
+                    cur = *output;
+                    f.output = cur;
+                    next += 1;
+                }
+            }
+        }
+        if readers[cur] == 1 {
+            match ops.get(next) {
+                Some(Op::Relu { input, output }) | Some(Op::Prelu { input, output, .. }) if *input == cur => {
+                    f.absorbed.push(next);
+                    f.post_op = Some(next);
+                    f.output = *output;
+                    next += 1;
+                }
+                _ => {}
+            }
+        }
+        if !f.absorbed.is_empty() {
+            out[k] = Some(f);
+        }
+        k = next;
+    }
+    out
+}
+
 #[derive(Debug, Clone)]
 enum Step {
     Conv {
@@ -28,7 +116,7 @@ enum Step {
         dst: usize,
         g: Geom,
         w: Packed,
-        act: Activation,
+        fused: Fused,
     },
     Depthwise {
         src: usize,
@@ -36,7 +124,7 @@ enum Step {
         g: Geom,
         filter: Vec<f32>,
         bias: Vec<f32>,
-        act: Activation,
+        fused: Fused,
     },
     MaxPool {
         src: usize,
@@ -143,10 +231,26 @@ impl Interpreter {
         graph.check()?;
         let t = &graph.tensors;
         let n_ops = graph.ops.len();
+        let fusions = plan_fusions(graph);
+        let mut absorbed = vec![false; n_ops];
+        for f in fusions.iter().flatten() {
+            for &a in &f.absorbed {
+                absorbed[a] = true;
+            }
+        }
+        // Tensors each (fused) operator reads and writes.
+        let reads = |k: usize| -> Vec<usize> {
+            let mut v = graph.ops[k].inputs();
+            if let Some(f) = &fusions[k] {
+                v.extend(f.residual);
+            }
+            v
+        };
+        let writes = |k: usize| -> usize { fusions[k].as_ref().map_or(graph.ops[k].output(), |f| f.output) };
         // Last reader of every tensor; graph outputs live to the end.
         let mut last_use = vec![0usize; t.len()];
-        for (k, op) in graph.ops.iter().enumerate() {
-            for i in op.inputs() {
+        for k in (0..n_ops).filter(|&k| !absorbed[k]) {
+            for i in reads(k) {
                 last_use[i] = k;
             }
         }
@@ -184,7 +288,10 @@ impl Interpreter {
         let mut im2col_len = 0;
         let mut counts: Vec<(&'static str, usize)> = Vec::new();
         for (k, op) in graph.ops.iter().enumerate() {
-            let out = op.output();
+            if absorbed[k] {
+                continue;
+            }
+            let out = writes(k);
             let dst = alloc(t[out].len(), &mut slot_len, &mut free);
             slot_of[out] = Some(dst);
             let slot = |i: usize| slot_of[i].ok_or_else(|| bad(format!("operator {k}: input has no buffer")));
@@ -196,6 +303,25 @@ impl Interpreter {
             let geom = |i: usize, win| -> Result<Geom> {
                 let s = &t[i].shape;
                 Geom::new(s[1], s[2], s[3], win).ok_or_else(|| bad(format!("operator {k}: window does not fit")))
+            };
+            let fused = |act: Activation| -> Result<Fused> {
+                let Some(f) = &fusions[k] else {
+                    return Ok(Fused {
+                        act,
+                        residual: None,
+                        post: FusedPost::None,
+                    });
+                };
+                let post = match f.post_op.map(|p| &graph.ops[p]) {
+                    Some(Op::Relu { .. }) => FusedPost::Relu,
+                    Some(Op::Prelu { alpha, .. }) => FusedPost::Prelu(cdata(*alpha)?.clone()),
+                    _ => FusedPost::None,
+                };
+                Ok(Fused {
+                    act,
+                    residual: f.residual.map(slot).transpose()?,
+                    post,
+                })
             };
             let step = match op {
                 Op::Conv2d {
@@ -222,7 +348,7 @@ impl Interpreter {
                         dst,
                         g,
                         w,
-                        act: *act,
+                        fused: fused(*act)?,
                     }
                 }
                 Op::DepthwiseConv2d {
@@ -244,7 +370,7 @@ impl Interpreter {
                         g,
                         filter: cdata(*filter)?.clone(),
                         bias,
-                        act: *act,
+                        fused: fused(*act)?,
                     }
                 }
                 Op::MaxPool2d { input, win, act, .. } => Step::MaxPool {
@@ -319,7 +445,7 @@ impl Interpreter {
             }
             steps.push(step);
             // Release buffers whose last reader was this operator.
-            let mut ins = op.inputs();
+            let mut ins = reads(k);
             ins.sort_unstable();
             ins.dedup();
             for i in ins {
@@ -438,6 +564,60 @@ impl Interpreter {
     }
 }
 
+impl Interpreter {
+    /// Runs the model once, timing each operator kind (for profiling; each step is
+    /// dispatched separately, so the total is slightly above [`Interpreter::run`]'s).
+    /// Returns `(operator, seconds, MACs or elements)` summed per kind.
+    ///
+    /// # Errors
+    /// As for [`Interpreter::run`].
+    pub fn profile(&self, ws: &mut Workspace) -> Result<Vec<(&'static str, f64)>> {
+        self.check_ws(ws)?;
+        let mut acc: Vec<(&'static str, f64)> = Vec::new();
+        for step in &self.steps {
+            let name = step_name(step);
+            let t0 = std::time::Instant::now();
+            pulp::Arch::new().dispatch(One { step, ws });
+            let dt = t0.elapsed().as_secs_f64();
+            match acc.iter_mut().find(|(n, _)| *n == name) {
+                Some(a) => a.1 += dt,
+                None => acc.push((name, dt)),
+            }
+        }
+        Ok(acc)
+    }
+}
+
+fn step_name(step: &Step) -> &'static str {
+    match step {
+        Step::Conv { g, .. } if g.is_pointwise() => "CONV_2D 1x1",
+        Step::Conv { .. } => "CONV_2D im2col",
+        Step::Depthwise { .. } => "DEPTHWISE_CONV_2D",
+        Step::MaxPool { .. } => "MAX_POOL_2D",
+        Step::Add { .. } => "ADD",
+        Step::Prelu { .. } => "PRELU",
+        Step::Relu { .. } => "RELU",
+        Step::Logistic { .. } => "LOGISTIC",
+        Step::Pad { .. } => "PAD",
+        Step::Copy { .. } => "RESHAPE",
+        Step::Concat { .. } => "CONCATENATION",
+    }
+}
+
+struct One<'a> {
+    step: &'a Step,
+    ws: &'a mut Workspace,
+}
+
+impl pulp::WithSimd for One<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        exec(self.step, self.ws);
+    }
+}
+
 struct Run<'a> {
     it: &'a Interpreter,
     ws: &'a mut Workspace,
@@ -452,6 +632,19 @@ impl pulp::WithSimd for Run<'_> {
         for step in &it.steps {
             exec(step, ws);
         }
+    }
+}
+
+#[inline(always)]
+fn epilogue<'a>(f: &'a Fused, slots: &'a [Vec<f32>]) -> kernels::Epilogue<'a> {
+    kernels::Epilogue {
+        act: f.act,
+        residual: f.residual.map(|r| slots[r].as_slice()),
+        post: match &f.post {
+            FusedPost::None => kernels::Post::None,
+            FusedPost::Relu => kernels::Post::Relu,
+            FusedPost::Prelu(a) => kernels::Post::Prelu(a),
+        },
     }
 }
 
@@ -476,15 +669,16 @@ fn exec(step: &Step, ws: &mut Workspace) {
     let mut out = std::mem::take(&mut ws.slots[dst_slot]);
     let slots = &ws.slots;
     match step {
-        Step::Conv { src, g, w, act, .. } => {
+        Step::Conv { src, g, w, fused, .. } => {
             let rows = g.oh * g.ow;
             let o = &mut out[..rows * w.n];
+            let ep = epilogue(fused, slots);
             if g.is_pointwise() {
-                kernels::gemm(&slots[*src], rows, w, *act, o);
+                kernels::gemm(&slots[*src], rows, w, &ep, o);
             } else {
                 let col = &mut ws.col[..g.im2col_len()];
                 kernels::im2col(&slots[*src], g, col);
-                kernels::gemm(col, rows, w, *act, o);
+                kernels::gemm(col, rows, w, &ep, o);
             }
         }
         Step::Depthwise {
@@ -492,9 +686,16 @@ fn exec(step: &Step, ws: &mut Workspace) {
             g,
             filter,
             bias,
-            act,
+            fused,
             ..
-        } => kernels::depthwise(&slots[*src], g, filter, bias, *act, &mut out[..g.oh * g.ow * g.ic]),
+        } => kernels::depthwise(
+            &slots[*src],
+            g,
+            filter,
+            bias,
+            &epilogue(fused, slots),
+            &mut out[..g.oh * g.ow * g.ic],
+        ),
         Step::MaxPool { src, g, act, .. } => kernels::max_pool(&slots[*src], g, *act, &mut out[..g.oh * g.ow * g.ic]),
         Step::Add { a, b, len, act, .. } => {
             kernels::add(&slots[*a][..*len], &slots[*b][..*len], *act, &mut out[..*len])
