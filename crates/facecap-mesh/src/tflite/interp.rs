@@ -559,7 +559,13 @@ impl Interpreter {
     /// [`Error::InvalidInput`] for a workspace made by another model.
     pub fn run(&self, ws: &mut Workspace) -> Result<()> {
         self.check_ws(ws)?;
-        pulp::Arch::new().dispatch(Run { it: self, ws });
+        let level = kernels::Level::detect();
+        let run = Run { it: self, ws, level };
+        match level {
+            #[cfg(target_arch = "x86_64")]
+            kernels::Level::V3(simd) => pulp::Simd::vectorize(simd, run),
+            kernels::Level::Portable => pulp::Arch::new().dispatch(run),
+        }
         Ok(())
     }
 }
@@ -577,7 +583,13 @@ impl Interpreter {
         for step in &self.steps {
             let name = step_name(step);
             let t0 = std::time::Instant::now();
-            pulp::Arch::new().dispatch(One { step, ws });
+            let level = kernels::Level::detect();
+            let one = One { step, ws, level };
+            match level {
+                #[cfg(target_arch = "x86_64")]
+                kernels::Level::V3(simd) => pulp::Simd::vectorize(simd, one),
+                kernels::Level::Portable => pulp::Arch::new().dispatch(one),
+            }
             let dt = t0.elapsed().as_secs_f64();
             match acc.iter_mut().find(|(n, _)| *n == name) {
                 Some(a) => a.1 += dt,
@@ -607,6 +619,7 @@ fn step_name(step: &Step) -> &'static str {
 struct One<'a> {
     step: &'a Step,
     ws: &'a mut Workspace,
+    level: kernels::Level,
 }
 
 impl pulp::WithSimd for One<'_> {
@@ -614,13 +627,14 @@ impl pulp::WithSimd for One<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        exec(self.step, self.ws);
+        exec(self.step, self.ws, self.level);
     }
 }
 
 struct Run<'a> {
     it: &'a Interpreter,
     ws: &'a mut Workspace,
+    level: kernels::Level,
 }
 
 impl pulp::WithSimd for Run<'_> {
@@ -628,9 +642,9 @@ impl pulp::WithSimd for Run<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Run { it, ws } = self;
+        let Run { it, ws, level } = self;
         for step in &it.steps {
-            exec(step, ws);
+            exec(step, ws, level);
         }
     }
 }
@@ -651,7 +665,7 @@ fn epilogue<'a>(f: &'a Fused, slots: &'a [Vec<f32>]) -> kernels::Epilogue<'a> {
 /// Runs one step. Buffer sizes were fixed by the plan, so slicing cannot fail for a
 /// workspace made by the same interpreter.
 #[inline(always)]
-fn exec(step: &Step, ws: &mut Workspace) {
+fn exec(step: &Step, ws: &mut Workspace, level: kernels::Level) {
     let dst_slot = match step {
         Step::Conv { dst, .. }
         | Step::Depthwise { dst, .. }
@@ -674,11 +688,11 @@ fn exec(step: &Step, ws: &mut Workspace) {
             let o = &mut out[..rows * w.n];
             let ep = epilogue(fused, slots);
             if g.is_pointwise() {
-                kernels::gemm(&slots[*src], rows, w, &ep, o);
+                kernels::gemm_at(level, &slots[*src], rows, w, &ep, o);
             } else {
                 let col = &mut ws.col[..g.im2col_len()];
                 kernels::im2col(&slots[*src], g, col);
-                kernels::gemm(col, rows, w, &ep, o);
+                kernels::gemm_at(level, col, rows, w, &ep, o);
             }
         }
         Step::Depthwise {
