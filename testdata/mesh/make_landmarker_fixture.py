@@ -5,12 +5,15 @@ Regenerate on purpose only, with mediapipe (tasks API) in a venv:
 
     FACECAP_REGENERATE=1 ../shared/anchors/.venv/bin/python testdata/mesh/make_landmarker_fixture.py
 
-IMAGE mode (every frame detected afresh, no smoothing), model `face_landmarker.task`
+`frames`: IMAGE mode (every frame detected afresh, no smoothing). `videos`: VIDEO mode
+over the first frames of a clip at timestamps `i * 33` ms (tracking from the previous
+frame's landmarks and one-euro smoothing), landmarks stored for every STEP-th frame.
+Model `face_landmarker.task`
 from the model cache's source package (scripts/setup.sh keeps its members; this script
 rebuilds the bundle path from $FACECAP_TASK, default ../shared/anchors/models/).
 Frames are decoded to rgb24 by the `ffmpeg` on PATH (the test runs the same command).
 Stored: per frame the landmarks in pixels (normalised x * width, y * height), rounded to
-1/1000 px; z is not stored.
+1/100 px; z is not stored.
 """
 import json
 import os
@@ -33,6 +36,10 @@ CLIPS = [
     ("videos/liveportrait_d3.mp4", [25]),
     ("videos/sadtalker_WDA_KatieHill_000.mp4", [10, 50]),
 ]
+
+VIDEO_CLIPS = [("videos/liveportrait_d9.mp4", 60), ("videos/sadtalker_WDA_KatieHill_000.mp4", 60)]
+STEP = 20
+FRAME_MS = 33
 
 
 def frames(clip, wanted):
@@ -60,10 +67,26 @@ def main():
             r = lm.detect(mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(img)))
             pts = None
             if r.face_landmarks:
-                pts = [[round(p.x * w, 3), round(p.y * h, 3)] for p in r.face_landmarks[0]]
+                pts = [[round(p.x * w, 2), round(p.y * h, 2)] for p in r.face_landmarks[0]]
             out.append({"clip": clip, "frame": i, "width": w, "height": h, "points": pts})
             print(clip, i, "face" if pts else "none", pts[1] if pts else "")
-    json.dump({"tool": f"mediapipe {mp.__version__} FaceLandmarker (IMAGE mode)", "frames": out},
+    videos = []
+    for clip, n in VIDEO_CLIPS:
+        vlm = vision.FaceLandmarker.create_from_options(vision.FaceLandmarkerOptions(
+            base_options=BaseOptions(model_asset_path=str(TASK)), running_mode=vision.RunningMode.VIDEO,
+            num_faces=1))
+        stored = []
+        for i, w, h, img in frames(clip, list(range(n))):
+            r = vlm.detect_for_video(mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(img)),
+                                     i * FRAME_MS)
+            if i % STEP == 0 or i == n - 1:
+                pts = [[round(p.x * w, 2), round(p.y * h, 2)] for p in r.face_landmarks[0]] if r.face_landmarks else None
+                stored.append({"frame": i, "points": pts})
+        videos.append({"clip": clip, "frames": n, "frame_ms": FRAME_MS, "width": w, "height": h, "stored": stored})
+        vlm.close()
+        print(clip, "video mode", n, "frames")
+    json.dump({"tool": f"mediapipe {mp.__version__} FaceLandmarker (IMAGE and VIDEO modes)", "frames": out,
+               "videos": videos},
               open(HERE / "landmarker_mediapipe.json", "w"), separators=(",", ":"))
 
 

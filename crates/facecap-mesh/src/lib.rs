@@ -6,14 +6,15 @@
 //! * [`detector`]: BlazeFace decoding (anchors, scores, boxes, weighted NMS).
 //! * [`roi`]: rotated regions and the image-to-tensor warp.
 //! * [`tracker`]: [`MeshTracker`], detection + landmarks + tracking per frame.
+//! * [`smoothing`]: MediaPipe's video-mode one-euro smoothing.
 //!
 //! ```no_run
-//! use facecap_mesh::{FaceMesh, MeshModels, MeshParams, MeshState, MeshTracker, RgbView};
+//! use facecap_mesh::{FaceMesh, MeshModels, MeshParams, MeshTracker, RgbView};
 //! # fn main() -> facecap_mesh::Result<()> {
 //! let tracker = MeshTracker::new(MeshModels::from_cache()?, MeshParams::default())?;
-//! let (mut ws, mut state, mut mesh) = (tracker.workspace(), MeshState::default(), FaceMesh::default());
+//! let (mut ws, mut state, mut mesh) = (tracker.workspace(), tracker.state(), FaceMesh::default());
 //! let img = image::RgbImage::new(640, 480); // a video frame
-//! let report = tracker.track_into(&RgbView::from_image(&img)?, &mut ws, &mut state, &mut mesh)?;
+//! let report = tracker.track_into(&RgbView::from_image(&img)?, 0.0, &mut ws, &mut state, &mut mesh)?;
 //! if report.has_face() {
 //!     println!("nose tip at {:?}", mesh.points[1]);
 //! }
@@ -28,12 +29,14 @@
 pub mod detector;
 pub mod error;
 pub mod roi;
+pub mod smoothing;
 pub mod tflite;
 pub mod tracker;
 
 pub use detector::{Detection, DetectorParams, FaceDetector};
 pub use error::{Error, Result};
 pub use roi::{NormRect, RgbView};
+pub use smoothing::{LandmarkSmoother, SmoothingParams};
 pub use tracker::{FaceMesh, MeshModels, MeshParams, MeshReport, MeshState, MeshStatus, MeshTracker, MeshWorkspace};
 
 /// File name of the BlazeFace short-range detector in the model cache.

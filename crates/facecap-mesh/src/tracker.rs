@@ -14,14 +14,17 @@
 //!   level, made square on its long side (in pixels) and scaled by 1.5; otherwise the face
 //!   is lost and the next frame runs the detector again.
 //!
-//! MediaPipe also smooths the landmarks in video mode (a one-euro filter) before it
-//! returns them; [`MeshTracker`] returns the raw landmarks.
+//! MediaPipe also smooths the landmarks in video mode (a one-euro filter, see
+//! [`crate::smoothing`]) before it returns them, while the next frame's region comes from
+//! the raw landmarks. [`MeshTracker`] does the same when [`MeshParams::smoothing`] is set
+//! (default: off, raw landmarks).
 //!
 //! Output coordinates: pixels, centre of the top-left pixel = (0, 0); `z` is MediaPipe's
 //! relative depth scaled by the image width like x (smaller = closer to the camera).
 
 use crate::detector::{check_unit, Detection, DetectorParams, DetectorWorkspace, FaceDetector};
 use crate::roi::{Affine, BilinearTable, Border, NormRect, RgbView};
+use crate::smoothing::{LandmarkSmoother, SmoothingParams};
 use crate::tflite::{Interpreter, Workspace};
 use crate::{Error, Result};
 
@@ -41,6 +44,7 @@ pub const IRIS_CENTERS: [usize; 2] = [468, 473];
 /// | `detector` | see [`DetectorParams`] | face detector settings | |
 /// | `min_presence` | 0.5 | minimum face presence to keep tracking (`min_face_presence_confidence`) | [0, 1] |
 /// | `roi_scale` | 1.5 | region size over the face box (MediaPipe's `scale_x/scale_y`) | [1, 4] |
+/// | `smoothing` | `None` | one-euro smoothing of the output as FaceLandmarker's video mode | see [`SmoothingParams`] |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshParams {
     /// Face detector settings.
@@ -49,6 +53,8 @@ pub struct MeshParams {
     pub min_presence: f32,
     /// Region-of-interest scale.
     pub roi_scale: f32,
+    /// Output smoothing (`None` = raw landmarks).
+    pub smoothing: Option<SmoothingParams>,
 }
 
 impl Default for MeshParams {
@@ -57,6 +63,7 @@ impl Default for MeshParams {
             detector: DetectorParams::default(),
             min_presence: 0.5,
             roi_scale: 1.5,
+            smoothing: None,
         }
     }
 }
@@ -75,6 +82,9 @@ impl MeshParams {
                 value: self.roi_scale.to_string(),
                 expected: "a number in [1, 4]".into(),
             });
+        }
+        if let Some(p) = self.smoothing {
+            LandmarkSmoother::new(p)?;
         }
         Ok(())
     }
@@ -126,11 +136,13 @@ pub struct FaceMesh {
     pub rect: NormRect,
 }
 
-/// What carries between frames.
-#[derive(Debug, Clone, Default, PartialEq)]
+/// What carries between frames (make one per video with [`MeshTracker::state`]).
+#[derive(Debug, Clone, Default)]
 pub struct MeshState {
     /// Region for the next frame (from the last landmarks); `None` = run the detector.
     pub next_rect: Option<NormRect>,
+    /// Smoothing filters, when [`MeshParams::smoothing`] is set.
+    pub smoother: Option<LandmarkSmoother>,
 }
 
 /// How a frame went.
@@ -223,6 +235,14 @@ impl MeshTracker {
         &self.detector
     }
 
+    /// A fresh per-video state.
+    pub fn state(&self) -> MeshState {
+        MeshState {
+            next_rect: None,
+            smoother: self.params.smoothing.and_then(|p| LandmarkSmoother::new(p).ok()),
+        }
+    }
+
     /// Buffers for one thread.
     pub fn workspace(&self) -> MeshWorkspace {
         MeshWorkspace {
@@ -312,13 +332,14 @@ impl MeshTracker {
         })
     }
 
-    /// Processes one frame.
+    /// Processes one frame taken at `timestamp_s` seconds (used by smoothing only).
     ///
     /// # Errors
     /// [`Error::InvalidInput`] for a workspace of another tracker.
     pub fn track_into(
         &self,
         img: &RgbView<'_>,
+        timestamp_s: f64,
         ws: &mut MeshWorkspace,
         state: &mut MeshState,
         out: &mut FaceMesh,
@@ -337,6 +358,9 @@ impl MeshTracker {
                 self.detector.detect_into(img, &mut ws.detector, &mut ws.detections)?;
                 let Some(d) = ws.detections.first() else {
                     report.status = MeshStatus::NoFace;
+                    if let Some(s) = &mut state.smoother {
+                        s.reset();
+                    }
                     return Ok(report);
                 };
                 report.status = MeshStatus::Detected;
@@ -348,9 +372,15 @@ impl MeshTracker {
         if report.presence < self.params.min_presence {
             report.status = MeshStatus::Lost;
             state.next_rect = None;
+            if let Some(s) = &mut state.smoother {
+                s.reset();
+            }
             return Ok(report);
         }
         state.next_rect = self.rect_from_landmarks(&ws.norm, w, h);
+        if let Some(s) = &mut state.smoother {
+            s.apply(timestamp_s, out);
+        }
         Ok(report)
     }
 }

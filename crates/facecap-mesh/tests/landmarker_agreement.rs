@@ -40,7 +40,7 @@ fn landmarks_match_mediapipe_face_landmarker() {
         };
         let mut state = MeshState::default();
         let report = tracker
-            .track_into(&RgbView::from_image(&img).unwrap(), &mut ws, &mut state, &mut mesh)
+            .track_into(&RgbView::from_image(&img).unwrap(), 0.0, &mut ws, &mut state, &mut mesh)
             .unwrap();
         let Some(want) = f["points"].as_array() else {
             assert!(!report.has_face(), "{clip}#{index}: MediaPipe found no face, we did");
@@ -78,4 +78,74 @@ fn landmarks_match_mediapipe_face_landmarker() {
         checked += 1;
     }
     assert!(checked > 0);
+}
+
+/// VIDEO mode: tracking from the previous frame's landmarks and one-euro smoothing,
+/// against FaceLandmarker's video mode over the first frames of two clips.
+#[test]
+fn tracked_smoothed_landmarks_match_mediapipe_video_mode() {
+    let test = "tracked_smoothed_landmarks_match_mediapipe_video_mode";
+    let (Some(det), Some(lm)) = (
+        model(test, facecap_mesh::FACE_DETECTOR_MODEL),
+        model(test, facecap_mesh::FACE_LANDMARKS_MODEL),
+    ) else {
+        return;
+    };
+    let params = MeshParams {
+        smoothing: Some(facecap_mesh::SmoothingParams::default()),
+        ..MeshParams::default()
+    };
+    let tracker = MeshTracker::new(MeshModels::load(&det, &lm).unwrap(), params).unwrap();
+    let mut ws = tracker.workspace();
+    let mut mesh = FaceMesh::default();
+    let fx = fixture("landmarker_mediapipe.json");
+    for v in fx["videos"].as_array().unwrap() {
+        let clip = v["clip"].as_str().unwrap();
+        let n = v["frames"].as_u64().unwrap();
+        let ms = v["frame_ms"].as_f64().unwrap();
+        let Some(frames) = clip_frames(test, clip, n) else {
+            return;
+        };
+        let mut state = tracker.state();
+        let stored = v["stored"].as_array().unwrap();
+        let mut next = 0;
+        for (i, img) in frames.iter().enumerate() {
+            let report = tracker
+                .track_into(
+                    &RgbView::from_image(img).unwrap(),
+                    i as f64 * ms * 1e-3,
+                    &mut ws,
+                    &mut state,
+                    &mut mesh,
+                )
+                .unwrap();
+            let Some(s) = stored.get(next) else { break };
+            if s["frame"].as_u64() != Some(i as u64) {
+                continue;
+            }
+            next += 1;
+            let want = s["points"].as_array().unwrap();
+            assert!(report.has_face(), "{clip}#{i}: {report:?}");
+            let d: Vec<f32> = want
+                .iter()
+                .zip(&mesh.points)
+                .map(|(w, p)| {
+                    let w = floats(w);
+                    ((p[0] - w[0]).powi(2) + (p[1] - w[1]).powi(2)).sqrt()
+                })
+                .collect();
+            let mean = d.iter().sum::<f32>() / d.len() as f32;
+            let max = d.iter().copied().fold(0.0, f32::max);
+            let iris = IRIS_CENTERS.map(|i| d[i]);
+            eprintln!(
+                "{clip}#{i} ({:?}): mean {mean:.3} px, max {max:.3} px, iris {:.3} / {:.3} px",
+                report.status, iris[0], iris[1]
+            );
+            let k = v["width"].as_f64().unwrap() as f32 / 480.0;
+            assert!(mean <= MEAN_PX * k, "{clip}#{i}: mean {mean} px");
+            assert!(max <= MAX_PX * k, "{clip}#{i}: max {max} px");
+            assert!(iris.iter().all(|&e| e <= IRIS_PX * k), "{clip}#{i}: iris {iris:?} px");
+        }
+        assert_eq!(next, stored.len(), "{clip}: not every stored frame was compared");
+    }
 }

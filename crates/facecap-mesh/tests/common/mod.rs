@@ -29,6 +29,35 @@ pub fn pattern(n: usize) -> Vec<u8> {
     v
 }
 
+/// The first `n` RGB frames of a shared clip (see [`clip_frame`]).
+pub fn clip_frames(test: &str, clip: &str, n: u64) -> Option<Vec<image::RgbImage>> {
+    let path = facecap_core::paths::shared_data_file(test, clip)?;
+    let info = facecap_core::video::open_source(&path, &Default::default())
+        .unwrap()
+        .info()
+        .clone();
+    let (w, h) = (info.width, info.height);
+    let out = std::process::Command::new("ffmpeg")
+        .args(["-nostdin", "-hide_banner", "-loglevel", "error", "-i"])
+        .arg(&path)
+        .args(["-map", "0:V:0", "-frames:v", &n.to_string()])
+        .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "pipe:1"])
+        .output();
+    let out = match out {
+        Ok(o) if o.status.success() => o.stdout,
+        _ => {
+            eprintln!("SKIP: {test}: ffmpeg not runnable");
+            return None;
+        }
+    };
+    let size = (w * h * 3) as usize;
+    Some(
+        out.chunks_exact(size)
+            .map(|c| image::RgbImage::from_raw(w, h, c.to_vec()).unwrap())
+            .collect(),
+    )
+}
+
 /// RGB frame `index` of a shared clip decoded by `ffmpeg` on PATH to rgb24 (the same
 /// command as the fixture script), or `None` (with a SKIP line) when absent.
 pub fn clip_frame(test: &str, clip: &str, index: u64) -> Option<image::RgbImage> {
