@@ -16,7 +16,7 @@
 //!    score-weighted means, the score stays the best one's.
 //! 5. Tensor coordinates are mapped back to normalised image coordinates.
 
-use crate::roi::{Affine, BilinearTable, Border, NormRect, RgbView};
+use crate::roi::{Affine, BilinearTable, Border, NormRect, RgbView, ValueMap};
 use crate::tflite::{Interpreter, Workspace};
 use crate::{Error, Result};
 
@@ -233,8 +233,7 @@ impl FaceDetector {
             &map,
             DETECTOR_INPUT,
             Border::Zero,
-            2.0 / 255.0,
-            -1.0,
+            ValueMap::SIGNED,
             &self.table,
             input,
         );

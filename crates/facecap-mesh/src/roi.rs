@@ -171,18 +171,40 @@ impl BilinearTable {
     }
 }
 
+/// How 8-bit samples become tensor values: `v8 * scale + offset`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ValueMap {
+    /// Factor.
+    pub scale: f32,
+    /// Offset.
+    pub offset: f32,
+}
+
+impl ValueMap {
+    /// [0, 255] -> [0, 1] (the landmark model).
+    pub const UNIT: ValueMap = ValueMap {
+        scale: 1.0 / 255.0,
+        offset: 0.0,
+    };
+    /// [0, 255] -> [-1, 1] (the detector).
+    pub const SIGNED: ValueMap = ValueMap {
+        scale: 2.0 / 255.0,
+        offset: -1.0,
+    };
+}
+
 /// Samples an `n x n x 3` float tensor from `img` through `map`: value
-/// `v8 * scale + offset`, `v8` the rounded 8-bit bilinear sample.
+/// `v8 * values.scale + values.offset`, `v8` the rounded 8-bit bilinear sample.
 pub fn warp_to_tensor(
     img: &RgbView<'_>,
     map: &Affine,
     n: usize,
     border: Border,
-    scale: f32,
-    offset: f32,
+    values: ValueMap,
     table: &BilinearTable,
     out: &mut [f32],
 ) {
+    let ValueMap { scale, offset } = values;
     let (w, h) = (img.width as i64, img.height as i64);
     let px = |x: i64, y: i64, c: usize| -> i32 {
         match border {
@@ -277,8 +299,10 @@ mod tests {
             &map,
             4,
             Border::Replicate,
-            1.0,
-            0.0,
+            ValueMap {
+                scale: 1.0,
+                offset: 0.0,
+            },
             &BilinearTable::new(),
             &mut out,
         );

@@ -159,7 +159,7 @@ impl LandmarkSmoother {
             y1 = y1.max(p[1]);
         }
         let scale = ((x1 - x0) + (y1 - y0)) / 2.0;
-        if !(scale >= MIN_OBJECT_SCALE) {
+        if scale.is_nan() || scale < MIN_OBJECT_SCALE {
             return;
         }
         let value_scale = 1.0 / scale as f64;

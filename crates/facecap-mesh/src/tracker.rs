@@ -23,7 +23,7 @@
 //! relative depth scaled by the image width like x (smaller = closer to the camera).
 
 use crate::detector::{check_unit, Detection, DetectorParams, DetectorWorkspace, FaceDetector};
-use crate::roi::{Affine, BilinearTable, Border, NormRect, RgbView};
+use crate::roi::{Affine, BilinearTable, Border, NormRect, RgbView, ValueMap};
 use crate::smoothing::{LandmarkSmoother, SmoothingParams};
 use crate::tflite::{Interpreter, Workspace};
 use crate::{Error, Result};
@@ -273,8 +273,7 @@ impl MeshTracker {
             &map,
             LANDMARK_INPUT,
             Border::Replicate,
-            1.0 / 255.0,
-            0.0,
+            ValueMap::UNIT,
             &self.table,
             input,
         );

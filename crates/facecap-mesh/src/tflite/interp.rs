@@ -702,7 +702,8 @@ fn exec(step: &Step, ws: &mut Workspace, level: kernels::Level) {
             bias,
             fused,
             ..
-        } => kernels::depthwise(
+        } => kernels::depthwise_at(
+            level,
             &slots[*src],
             g,
             filter,

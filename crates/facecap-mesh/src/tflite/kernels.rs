@@ -227,6 +227,64 @@ mod v3 {
         }
     }
 
+    /// Most kernel taps per axis of the register depthwise path.
+    pub const MAX_TAPS: usize = 8;
+
+    /// [`super::depthwise`] with each 8-channel accumulator kept in a register over all
+    /// taps (one store per output vector instead of a load and a store per tap). Needs
+    /// `c % 8 == 0` and kernels of at most [`MAX_TAPS`] per axis; the caller checks.
+    #[inline(always)]
+    pub fn depthwise(
+        simd: V3,
+        input: &[f32],
+        g: &super::Geom,
+        filter: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+    ) {
+        let c = g.ic;
+        let kw = g.win.kw;
+        // (kernel index, input index) of the valid taps of the current row / column.
+        let mut ty = [(0usize, 0usize); MAX_TAPS];
+        let mut tx = [(0usize, 0usize); MAX_TAPS];
+        for oy in 0..g.oh {
+            let mut ny = 0;
+            for ky in 0..g.win.kh {
+                if let Some(iy) = g.iy(oy, ky) {
+                    ty[ny] = (ky, iy);
+                    ny += 1;
+                }
+            }
+            for ox in 0..g.ow {
+                let mut nx = 0;
+                for kx in 0..kw {
+                    if let Some(ix) = g.ix(ox, kx) {
+                        tx[nx] = (kx, ix);
+                        nx += 1;
+                    }
+                }
+                let at = (oy * g.ow + ox) * c;
+                let px = &mut out[at..at + c];
+                for cb in (0..c).step_by(8) {
+                    let mut acc = load(&bias[cb..cb + 8]);
+                    for &(ky, iy) in &ty[..ny] {
+                        for &(kx, ix) in &tx[..nx] {
+                            let i = (iy * g.iw + ix) * c + cb;
+                            let w = (ky * kw + kx) * c + cb;
+                            acc = simd.mul_add_f32x8(load(&input[i..i + 8]), load(&filter[w..w + 8]), acc);
+                        }
+                    }
+                    let v: [f32; 8] = bytemuck::cast(acc);
+                    if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut px[cb..cb + 8]) {
+                        *dst = v;
+                    }
+                }
+                ep.apply(px, at, 0);
+            }
+        }
+    }
+
     /// [`super::gemm`] with the AVX2/FMA block.
     #[inline(always)]
     pub fn gemm(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
@@ -275,6 +333,26 @@ impl Level {
             return Level::V3(v3);
         }
         Level::Portable
+    }
+}
+
+/// [`depthwise`] at a given SIMD level.
+#[inline(always)]
+pub fn depthwise_at(
+    level: Level,
+    input: &[f32],
+    g: &Geom,
+    filter: &[f32],
+    bias: &[f32],
+    ep: &Epilogue<'_>,
+    out: &mut [f32],
+) {
+    match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::V3(simd) if g.ic % 8 == 0 && g.win.kh <= v3::MAX_TAPS && g.win.kw <= v3::MAX_TAPS => {
+            v3::depthwise(simd, input, g, filter, bias, ep, out)
+        }
+        _ => depthwise(input, g, filter, bias, ep, out),
     }
 }
 
@@ -745,7 +823,12 @@ mod tests {
             let s = 1 + case % 2;
             let padding = if case % 4 == 0 { Padding::Valid } else { Padding::Same };
             let (ih, iw) = (rng.random_range(k..14), rng.random_range(k..14));
-            let c = rng.random_range(1..50);
+            // Multiples of 8 exercise the register path, others the portable one.
+            let c = if case % 2 == 0 {
+                8 * rng.random_range(1..7)
+            } else {
+                rng.random_range(1..50)
+            };
             let win = Window {
                 kh: k,
                 kw: k,
@@ -760,10 +843,20 @@ mod tests {
             let filter = rnd(&mut rng, k * k * c);
             let bias = rnd(&mut rng, c);
             let want = reference::depthwise(&input, &g, &filter, &bias, Activation::Relu6);
-            let mut got = vec![0.0; g.oh * g.ow * c];
-            depthwise(&input, &g, &filter, &bias, &Epilogue::act(Activation::Relu6), &mut got);
-            let d = max_diff(&got, &want);
-            assert!(d < 1e-5, "case {case}: max difference {d}");
+            for level in [Level::Portable, Level::detect()] {
+                let mut got = vec![0.0; g.oh * g.ow * c];
+                depthwise_at(
+                    level,
+                    &input,
+                    &g,
+                    &filter,
+                    &bias,
+                    &Epilogue::act(Activation::Relu6),
+                    &mut got,
+                );
+                let d = max_diff(&got, &want);
+                assert!(d < 1e-5, "case {case} {level:?}: max difference {d}");
+            }
         }
     }
 
