@@ -181,6 +181,7 @@ mod v3 {
     use pulp::bytemuck;
     use pulp::f32x8;
     use pulp::x86::V3;
+    use pulp::Simd;
 
     /// Rows per register block (12 accumulators + 2 weights + 1 broadcast of 16 ymm).
     pub const MR_V3: usize = 6;
@@ -222,8 +223,38 @@ mod v3 {
             }
         }
         for (r, row) in acc.iter().enumerate() {
-            let mut vals: [f32; NR] = bytemuck::cast(*row);
-            super::store(&mut vals, ep, out, at, r * ldo, c0, ncols);
+            let off = r * ldo;
+            if ncols == NR && ep.act == super::Activation::None {
+                // Vector epilogue: residual add and ReLU / PReLU on the registers.
+                let mut v = *row;
+                if let Some(res) = ep.residual {
+                    let base = at + off;
+                    v[0] = simd.add_f32s(v[0], load(&res[base..base + 8]));
+                    v[1] = simd.add_f32s(v[1], load(&res[base + 8..base + 16]));
+                }
+                match ep.post {
+                    super::Post::None => {}
+                    super::Post::Relu => {
+                        let z = simd.splat_f32x8(0.0);
+                        v[0] = simd.max_f32s(v[0], z);
+                        v[1] = simd.max_f32s(v[1], z);
+                    }
+                    super::Post::Prelu(alpha) => {
+                        let z = simd.splat_f32x8(0.0);
+                        for (j, vj) in v.iter_mut().enumerate() {
+                            let a = load(&alpha[c0 + 8 * j..c0 + 8 * j + 8]);
+                            *vj = simd.mul_add_f32x8(a, simd.min_f32s(*vj, z), simd.max_f32s(*vj, z));
+                        }
+                    }
+                }
+                let vals: [f32; NR] = bytemuck::cast(v);
+                if let Ok(dst) = <&mut [f32; NR]>::try_from(&mut out[off..off + NR]) {
+                    *dst = vals;
+                }
+            } else {
+                let mut vals: [f32; NR] = bytemuck::cast(*row);
+                super::store(&mut vals, ep, out, at, off, c0, ncols);
+            }
         }
     }
 
