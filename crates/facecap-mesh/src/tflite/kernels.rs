@@ -287,7 +287,44 @@ mod v3 {
                     ny += 1;
                 }
             }
-            for ox in 0..g.ow {
+            let mut ox = 0;
+            while ox < g.ow {
+                // Four output pixels at once where all their taps are inside the row:
+                // each weight vector is loaded once for the four.
+                let interior = |o: usize| o * g.win.sw >= g.pl && o * g.win.sw - g.pl + (kw - 1) * g.win.dw < g.iw;
+                if ox + 4 <= g.ow && interior(ox) && interior(ox + 3) {
+                    let at = (oy * g.ow + ox) * c;
+                    let x0 = ox * g.win.sw - g.pl;
+                    let step = g.win.sw * c;
+                    for cb in (0..c).step_by(8) {
+                        let b = load(&bias[cb..cb + 8]);
+                        let mut acc = [b; 4];
+                        for &(ky, iy) in &ty[..ny] {
+                            let row = iy * g.iw * c + cb;
+                            for kx in 0..kw {
+                                let w = load(&filter[(ky * kw + kx) * c + cb..(ky * kw + kx) * c + cb + 8]);
+                                let i0 = row + (x0 + kx * g.win.dw) * c;
+                                for (j, a) in acc.iter_mut().enumerate() {
+                                    let i = i0 + j * step;
+                                    *a = simd.mul_add_f32x8(load(&input[i..i + 8]), w, *a);
+                                }
+                            }
+                        }
+                        for (j, a) in acc.iter().enumerate() {
+                            let v: [f32; 8] = bytemuck::cast(*a);
+                            let o = at + j * c + cb;
+                            if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut out[o..o + 8]) {
+                                *dst = v;
+                            }
+                        }
+                    }
+                    for j in 0..4 {
+                        let a = at + j * c;
+                        ep.apply(&mut out[a..a + c], a, 0);
+                    }
+                    ox += 4;
+                    continue;
+                }
                 let mut nx = 0;
                 for kx in 0..kw {
                     if let Some(ix) = g.ix(ox, kx) {
@@ -312,6 +349,7 @@ mod v3 {
                     }
                 }
                 ep.apply(px, at, 0);
+                ox += 1;
             }
         }
     }
