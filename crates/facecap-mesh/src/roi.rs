@@ -221,53 +221,77 @@ pub fn warp_to_tensor(
             }
         }
     };
+    // 8-bit value -> tensor value.
+    let lut: [f32; 256] = std::array::from_fn(|v| v as f32 * scale + offset);
+    let row = (w * 3) as usize;
     for v in 0..n {
         for u in 0..n {
             let sx = map.origin[0] + u as f64 * map.du[0] + v as f64 * map.dv[0];
             let sy = map.origin[1] + u as f64 * map.du[1] + v as f64 * map.dv[1];
-            // OpenCV: X = saturate_cast<int>(x * INTER_TAB_SIZE) (round to nearest).
-            let xi = (sx * TAB as f64)
-                .round()
-                .clamp(i32::MIN as f64 / 2.0, i32::MAX as f64 / 2.0) as i64;
-            let yi = (sy * TAB as f64)
-                .round()
-                .clamp(i32::MIN as f64 / 2.0, i32::MAX as f64 / 2.0) as i64;
+            // OpenCV: X = saturate_cast<int>(x * INTER_TAB_SIZE), i.e. cvRound.
+            let xi = rint((sx * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT)) as i64;
+            let yi = rint((sy * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT)) as i64;
             let (x0, y0) = (xi >> 5, yi >> 5);
             let wt = &table.w[((yi & 31) * 32 + (xi & 31)) as usize];
             let o = &mut out[(v * n + u) * 3..(v * n + u) * 3 + 3];
-            let inside = x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h;
-            for (c, dst) in o.iter_mut().enumerate() {
-                let (p00, p01, p10, p11) = if inside {
-                    let i = ((y0 * w + x0) * 3) as usize + c;
-                    let r = (w * 3) as usize;
-                    (
-                        img.data[i] as i32,
-                        img.data[i + 3] as i32,
-                        img.data[i + r] as i32,
-                        img.data[i + r + 3] as i32,
-                    )
-                } else if border == Border::Zero && (x0 + 1 < 0 || y0 + 1 < 0 || x0 >= w || y0 >= h) {
-                    (0, 0, 0, 0)
-                } else {
-                    (
+            let mix = |p00: i32, p01: i32, p10: i32, p11: i32| -> f32 {
+                let s = p00 * wt[0] + p01 * wt[1] + p10 * wt[2] + p11 * wt[3];
+                // cast_op: (s + (1 << 14)) >> 15, saturated to u8.
+                lut[((s + (1 << 14)) >> 15).clamp(0, 255) as usize]
+            };
+            if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
+                let i = ((y0 * w + x0) * 3) as usize;
+                let a = &img.data[i..i + 6];
+                let b = &img.data[i + row..i + row + 6];
+                for c in 0..3 {
+                    o[c] = mix(a[c] as i32, a[c + 3] as i32, b[c] as i32, b[c + 3] as i32);
+                }
+            } else if border == Border::Zero && (x0 + 1 < 0 || y0 + 1 < 0 || x0 >= w || y0 >= h) {
+                o.fill(lut[0]);
+            } else {
+                for (c, dst) in o.iter_mut().enumerate() {
+                    *dst = mix(
                         px(x0, y0, c),
                         px(x0 + 1, y0, c),
                         px(x0, y0 + 1, c),
                         px(x0 + 1, y0 + 1, c),
-                    )
-                };
-                let s = p00 * wt[0] + p01 * wt[1] + p10 * wt[2] + p11 * wt[3];
-                // cast_op: (s + (1 << 14)) >> 15, saturated to u8.
-                let v8 = ((s + (1 << 14)) >> 15).clamp(0, 255);
-                *dst = v8 as f32 * scale + offset;
+                    );
+                }
             }
         }
     }
 }
 
+/// Source coordinates (in 1/32 px) are clamped to this before rounding.
+const COORD_LIMIT: f64 = (1u64 << 40) as f64;
+
+/// Round half to even (`cvRound` / `lrint` in the default rounding mode) without a libm
+/// call: adding and subtracting 1.5 * 2^52 leaves the nearest integer for |v| < 2^51.
+#[inline(always)]
+fn rint(v: f64) -> f64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0;
+    (v + MAGIC) - MAGIC
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rint_rounds_half_to_even() {
+        for (v, r) in [
+            (0.5, 0.0),
+            (1.5, 2.0),
+            (2.5, 2.0),
+            (-0.5, 0.0),
+            (-1.5, -2.0),
+            (3.2, 3.0),
+            (-3.7, -4.0),
+        ] {
+            assert_eq!(rint(v), r, "{v}");
+        }
+        assert_eq!(rint(1e12 + 0.25), 1e12);
+    }
 
     #[test]
     fn table_rows_sum_to_one() {
