@@ -712,6 +712,16 @@ impl Graph {
     /// [`Error::Model`] naming the operator.
     pub fn check(&self) -> Result<()> {
         let t = &self.tensors;
+        // Graphs can be built by hand (public fields): check ids before indexing.
+        let in_range = |i: usize| i < t.len();
+        if !self.inputs.iter().chain(&self.outputs).all(|&i| in_range(i))
+            || !self
+                .ops
+                .iter()
+                .all(|op| op.inputs().into_iter().all(in_range) && in_range(op.output()))
+        {
+            return Err(bad("a tensor index is out of range"));
+        }
         let mut written = vec![false; t.len()];
         for &i in &self.inputs {
             if t[i].is_const() {
@@ -768,6 +778,9 @@ impl Graph {
                 } => {
                     let [_, h, w, c] = nhwc(act_in(*input)?)?;
                     let fs = &t[*filter].shape;
+                    if fs.len() != 4 {
+                        return Err(bad(format!("{what}: filter rank {} (expected 4)", fs.len())));
+                    }
                     let depthwise = matches!(op, Op::DepthwiseConv2d { .. });
                     let oc = if depthwise {
                         if fs[0] != 1 || fs[3] != c {
@@ -848,6 +861,9 @@ impl Graph {
                     }
                 }
                 Op::Concat { inputs, axis, .. } => {
+                    if *axis >= os.len() {
+                        return Err(bad(format!("{what}: axis {axis} for rank {}", os.len())));
+                    }
                     let mut sum = 0;
                     for &i in inputs {
                         let s = act_in(i)?;
@@ -894,6 +910,51 @@ mod tests {
         assert!(f16_to_f32(0x7c00).is_infinite());
         assert!(f16_to_f32(0x7e00).is_nan());
         assert_eq!(f16_to_f32(0x8000).to_bits(), 0x8000_0000);
+    }
+
+    #[test]
+    fn hand_built_graphs_with_bad_indices_or_ranks_are_errors() {
+        let tensor = |shape: Vec<usize>, data: Option<Vec<f32>>| Tensor {
+            name: String::new(),
+            shape,
+            data,
+            int_data: None,
+        };
+        let win = Window {
+            kh: 1,
+            kw: 1,
+            sh: 1,
+            sw: 1,
+            dh: 1,
+            dw: 1,
+            padding: Padding::Valid,
+        };
+        let conv = |filter| Op::Conv2d {
+            input: 0,
+            filter,
+            bias: None,
+            output: 2,
+            win,
+            act: Activation::None,
+        };
+        let mut g = Graph {
+            tensors: vec![
+                tensor(vec![1, 2, 2, 3], None),
+                tensor(vec![4, 3], Some(vec![0.0; 12])),
+                tensor(vec![1, 2, 2, 4], None),
+            ],
+            ops: vec![conv(1)],
+            inputs: vec![0],
+            outputs: vec![2],
+        };
+        assert!(g.check().is_err(), "rank-2 filter accepted");
+        g.ops = vec![conv(7)];
+        assert!(g.check().is_err(), "out-of-range filter accepted");
+        g.tensors[1] = tensor(vec![4, 1, 1, 3], Some(vec![0.0; 12]));
+        g.ops = vec![conv(1)];
+        assert!(g.check().is_ok());
+        g.outputs = vec![9];
+        assert!(g.check().is_err(), "out-of-range output accepted");
     }
 
     #[test]
