@@ -3,7 +3,7 @@ agreement tests of crates/facecap-mesh (tests/tflite_agreement.rs).
 
 Regenerate on purpose only:
 
-    python3 -m venv /tmp/litert && /tmp/litert/bin/pip install ai-edge-litert==2.1.0 numpy
+    python3 -m venv /tmp/litert && /tmp/litert/bin/pip install ai-edge-litert==2.3.0 numpy
     FACECAP_REGENERATE=1 /tmp/litert/bin/python testdata/mesh/make_tflite_fixtures.py
 
 Inputs are made deterministically, so the Rust test rebuilds the same tensors:
