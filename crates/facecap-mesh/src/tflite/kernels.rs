@@ -1,0 +1,960 @@
+//! Float32 NHWC kernels of the interpreter, each with a slow obvious reference
+//! (`reference` module) that the tests compare against on seeded random inputs.
+//!
+//! Layouts (TFLite's): activations `[1, H, W, C]` row-major; convolution filters
+//! `[Cout, KH, KW, Cin]`; depthwise filters `[1, KH, KW, C]`; biases `[Cout]`.
+//!
+//! Convolution is a GEMM: `out[p, co] = bias[co] + sum_k A[p, k] W[k, co]` where `A` is
+//! the input itself for 1x1 stride-1 convolutions and an im2col matrix
+//! (`k = (ky * KW + kx) * Cin + ci`) otherwise. `W` is packed at load into column panels
+//! of [`NR`] output channels (`[panel][k][NR]`, zero-padded), and a `MR x NR` register
+//! block of accumulators runs over `k` with fused multiply-adds. The kernels are written
+//! as plain loops over fixed-size arrays and are compiled inside a `pulp` dispatch, so
+//! they vectorise with AVX2/FMA where the CPU has them (the interpreter calls them from
+//! one [`pulp::WithSimd`] body per inference).
+
+use super::model::{Activation, Window};
+
+/// Output channels per packed panel (two 8-lane registers).
+pub const NR: usize = 16;
+/// Rows (output pixels) per register block.
+pub const MR: usize = 4;
+
+/// What a convolution does to its sums after the bias and fused activation: add a
+/// residual tensor of the output's shape (a following `ADD`), then apply a following
+/// `RELU` or `PRELU`. Fusing these saves two passes over the activations.
+#[derive(Debug, Clone, Copy)]
+pub struct Epilogue<'a> {
+    /// Activation fused into the convolution itself (applied first).
+    pub act: Activation,
+    /// Residual added after `act`, laid out like the output.
+    pub residual: Option<&'a [f32]>,
+    /// Activation applied after the residual.
+    pub post: Post<'a>,
+}
+
+/// An activation following a convolution (see [`Epilogue`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Post<'a> {
+    /// Nothing.
+    None,
+    /// `max(x, 0)`.
+    Relu,
+    /// `x >= 0 ? x : alpha[channel] * x`.
+    Prelu(&'a [f32]),
+}
+
+impl Epilogue<'_> {
+    /// Only a fused activation.
+    pub fn act(act: Activation) -> Epilogue<'static> {
+        Epilogue {
+            act,
+            residual: None,
+            post: Post::None,
+        }
+    }
+
+    /// Applies the epilogue to `vals` (channels `c0..c0 + vals.len()` of the output
+    /// element block starting at flat index `at`).
+    #[inline(always)]
+    fn apply(&self, vals: &mut [f32], at: usize, c0: usize) {
+        let n = vals.len();
+        if self.act != Activation::None {
+            for v in vals.iter_mut() {
+                *v = self.act.apply(*v);
+            }
+        }
+        if let Some(r) = self.residual {
+            for (v, &x) in vals.iter_mut().zip(&r[at..at + n]) {
+                *v += x;
+            }
+        }
+        match self.post {
+            Post::None => {}
+            Post::Relu => {
+                for v in vals.iter_mut() {
+                    *v = v.max(0.0);
+                }
+            }
+            Post::Prelu(alpha) => {
+                for (v, &a) in vals.iter_mut().zip(&alpha[c0..c0 + n]) {
+                    *v = if *v >= 0.0 { *v } else { *v * a };
+                }
+            }
+        }
+    }
+}
+
+/// Convolution weights packed for [`gemm`].
+#[derive(Debug, Clone)]
+pub struct Packed {
+    /// Reduction length (`KH * KW * Cin`).
+    pub k: usize,
+    /// Output channels.
+    pub n: usize,
+    /// `[n.div_ceil(NR)][k][NR]`.
+    pub data: Vec<f32>,
+    /// Bias, zero-padded to a multiple of `NR`.
+    pub bias: Vec<f32>,
+}
+
+impl Packed {
+    /// Packs OHWI filters (`n` rows of `k` values) and an optional bias.
+    pub fn new(filter: &[f32], bias: Option<&[f32]>, n: usize, k: usize) -> Packed {
+        let panels = n.div_ceil(NR);
+        let mut data = vec![0.0; panels * k * NR];
+        for co in 0..n {
+            let (p, j) = (co / NR, co % NR);
+            for kk in 0..k {
+                data[(p * k + kk) * NR + j] = filter[co * k + kk];
+            }
+        }
+        let mut b = vec![0.0; panels * NR];
+        if let Some(bias) = bias {
+            b[..n].copy_from_slice(&bias[..n]);
+        }
+        Packed { k, n, data, bias: b }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn micro<const M: usize>(
+    a: &[f32],
+    lda: usize,
+    panel: &[f32],
+    bias: &[f32],
+    ep: &Epilogue<'_>,
+    out: &mut [f32],
+    at: usize,
+    ldo: usize,
+    c0: usize,
+    ncols: usize,
+) {
+    let mut acc = [[0.0f32; NR]; M];
+    let mut b = [0.0f32; NR];
+    b.copy_from_slice(&bias[..NR]);
+    for row in acc.iter_mut() {
+        *row = b;
+    }
+    let k = panel.len() / NR;
+    let rows: [&[f32]; M] = std::array::from_fn(|r| &a[r * lda..r * lda + k]);
+    for (kk, w) in panel.chunks_exact(NR).enumerate() {
+        let mut wv = [0.0f32; NR];
+        wv.copy_from_slice(w);
+        for r in 0..M {
+            let x = rows[r][kk];
+            for j in 0..NR {
+                acc[r][j] = x.mul_add(wv[j], acc[r][j]);
+            }
+        }
+    }
+    for (r, row) in acc.iter_mut().enumerate() {
+        store(row, ep, out, at, r * ldo, c0, ncols);
+    }
+}
+
+/// Applies the epilogue to one register row and stores it at `out[off..]`. A full row
+/// goes through fixed-size arrays: variable-length copies would become memmove calls.
+#[inline(always)]
+fn store(vals: &mut [f32; NR], ep: &Epilogue<'_>, out: &mut [f32], at: usize, off: usize, c0: usize, ncols: usize) {
+    if ncols == NR {
+        ep.apply(vals, at + off, c0);
+        if let Ok(dst) = <&mut [f32; NR]>::try_from(&mut out[off..off + NR]) {
+            *dst = *vals;
+        }
+    } else {
+        let vals = &mut vals[..ncols];
+        ep.apply(vals, at + off, c0);
+        for (d, &v) in out[off..off + ncols].iter_mut().zip(vals.iter()) {
+            *d = v;
+        }
+    }
+}
+
+/// The AVX2/FMA register block: `MR_V3 x 16` accumulators in twelve `f32x8` registers,
+/// written with explicit vector types so they stay in registers across the `k` loop
+/// (the array-of-floats version of [`micro`] spills them to the stack).
+#[cfg(target_arch = "x86_64")]
+mod v3 {
+    use super::{Epilogue, Packed, NR};
+    use pulp::bytemuck;
+    use pulp::f32x8;
+    use pulp::x86::V3;
+    use pulp::Simd;
+
+    /// Rows per register block (12 accumulators + 2 weights + 1 broadcast of 16 ymm).
+    pub const MR_V3: usize = 6;
+
+    #[inline(always)]
+    fn load(s: &[f32]) -> f32x8 {
+        let mut t = [0.0f32; 8];
+        t.copy_from_slice(&s[..8]);
+        bytemuck::cast(t)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn micro<const M: usize>(
+        simd: V3,
+        a: &[f32],
+        lda: usize,
+        panel: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+        at: usize,
+        ldo: usize,
+        c0: usize,
+        ncols: usize,
+    ) {
+        let b0 = load(&bias[..8]);
+        let b1 = load(&bias[8..16]);
+        let mut acc = [[b0, b1]; M];
+        let k = panel.len() / NR;
+        let rows: [&[f32]; M] = std::array::from_fn(|r| &a[r * lda..r * lda + k]);
+        for (kk, w) in panel.chunks_exact(NR).enumerate() {
+            let w0 = load(&w[..8]);
+            let w1 = load(&w[8..16]);
+            for r in 0..M {
+                let x = simd.splat_f32x8(rows[r][kk]);
+                acc[r][0] = simd.mul_add_f32x8(x, w0, acc[r][0]);
+                acc[r][1] = simd.mul_add_f32x8(x, w1, acc[r][1]);
+            }
+        }
+        for (r, row) in acc.iter().enumerate() {
+            let off = r * ldo;
+            if ncols == NR && ep.act == super::Activation::None {
+                // Vector epilogue: residual add and ReLU / PReLU on the registers.
+                let mut v = *row;
+                if let Some(res) = ep.residual {
+                    let base = at + off;
+                    v[0] = simd.add_f32s(v[0], load(&res[base..base + 8]));
+                    v[1] = simd.add_f32s(v[1], load(&res[base + 8..base + 16]));
+                }
+                match ep.post {
+                    super::Post::None => {}
+                    super::Post::Relu => {
+                        let z = simd.splat_f32x8(0.0);
+                        v[0] = simd.max_f32s(v[0], z);
+                        v[1] = simd.max_f32s(v[1], z);
+                    }
+                    super::Post::Prelu(alpha) => {
+                        let z = simd.splat_f32x8(0.0);
+                        for (j, vj) in v.iter_mut().enumerate() {
+                            let a = load(&alpha[c0 + 8 * j..c0 + 8 * j + 8]);
+                            *vj = simd.mul_add_f32x8(a, simd.min_f32s(*vj, z), simd.max_f32s(*vj, z));
+                        }
+                    }
+                }
+                let vals: [f32; NR] = bytemuck::cast(v);
+                if let Ok(dst) = <&mut [f32; NR]>::try_from(&mut out[off..off + NR]) {
+                    *dst = vals;
+                }
+            } else {
+                let mut vals: [f32; NR] = bytemuck::cast(*row);
+                super::store(&mut vals, ep, out, at, off, c0, ncols);
+            }
+        }
+    }
+
+    /// Most kernel taps per axis of the register depthwise path.
+    pub const MAX_TAPS: usize = 8;
+
+    /// [`super::depthwise`] with each 8-channel accumulator kept in a register over all
+    /// taps (one store per output vector instead of a load and a store per tap). Needs
+    /// `c % 8 == 0` and kernels of at most [`MAX_TAPS`] per axis; the caller checks.
+    #[inline(always)]
+    pub fn depthwise(
+        simd: V3,
+        input: &[f32],
+        g: &super::Geom,
+        filter: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+    ) {
+        let c = g.ic;
+        let kw = g.win.kw;
+        // (kernel index, input index) of the valid taps of the current row / column.
+        let mut ty = [(0usize, 0usize); MAX_TAPS];
+        let mut tx = [(0usize, 0usize); MAX_TAPS];
+        for oy in 0..g.oh {
+            let mut ny = 0;
+            for ky in 0..g.win.kh {
+                if let Some(iy) = g.iy(oy, ky) {
+                    ty[ny] = (ky, iy);
+                    ny += 1;
+                }
+            }
+            let mut ox = 0;
+            while ox < g.ow {
+                // Four output pixels at once where all their taps are inside the row:
+                // each weight vector is loaded once for the four.
+                let interior = |o: usize| o * g.win.sw >= g.pl && o * g.win.sw - g.pl + (kw - 1) * g.win.dw < g.iw;
+                if ox + 4 <= g.ow && interior(ox) && interior(ox + 3) {
+                    let at = (oy * g.ow + ox) * c;
+                    let x0 = ox * g.win.sw - g.pl;
+                    let step = g.win.sw * c;
+                    for cb in (0..c).step_by(8) {
+                        let b = load(&bias[cb..cb + 8]);
+                        let mut acc = [b; 4];
+                        for &(ky, iy) in &ty[..ny] {
+                            let row = iy * g.iw * c + cb;
+                            for kx in 0..kw {
+                                let w = load(&filter[(ky * kw + kx) * c + cb..(ky * kw + kx) * c + cb + 8]);
+                                let i0 = row + (x0 + kx * g.win.dw) * c;
+                                for (j, a) in acc.iter_mut().enumerate() {
+                                    let i = i0 + j * step;
+                                    *a = simd.mul_add_f32x8(load(&input[i..i + 8]), w, *a);
+                                }
+                            }
+                        }
+                        for (j, a) in acc.iter().enumerate() {
+                            let v: [f32; 8] = bytemuck::cast(*a);
+                            let o = at + j * c + cb;
+                            if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut out[o..o + 8]) {
+                                *dst = v;
+                            }
+                        }
+                    }
+                    for j in 0..4 {
+                        let a = at + j * c;
+                        ep.apply(&mut out[a..a + c], a, 0);
+                    }
+                    ox += 4;
+                    continue;
+                }
+                let mut nx = 0;
+                for kx in 0..kw {
+                    if let Some(ix) = g.ix(ox, kx) {
+                        tx[nx] = (kx, ix);
+                        nx += 1;
+                    }
+                }
+                let at = (oy * g.ow + ox) * c;
+                let px = &mut out[at..at + c];
+                for cb in (0..c).step_by(8) {
+                    let mut acc = load(&bias[cb..cb + 8]);
+                    for &(ky, iy) in &ty[..ny] {
+                        for &(kx, ix) in &tx[..nx] {
+                            let i = (iy * g.iw + ix) * c + cb;
+                            let w = (ky * kw + kx) * c + cb;
+                            acc = simd.mul_add_f32x8(load(&input[i..i + 8]), load(&filter[w..w + 8]), acc);
+                        }
+                    }
+                    let v: [f32; 8] = bytemuck::cast(acc);
+                    if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut px[cb..cb + 8]) {
+                        *dst = v;
+                    }
+                }
+                ep.apply(px, at, 0);
+                ox += 1;
+            }
+        }
+    }
+
+    /// [`super::gemm`] with the AVX2/FMA block.
+    #[inline(always)]
+    pub fn gemm(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+        let (k, n) = (w.k, w.n);
+        let panels = n.div_ceil(NR);
+        let mut p = 0;
+        while p < rows {
+            let m = (rows - p).min(MR_V3);
+            let a_blk = &a[p * k..];
+            for pi in 0..panels {
+                let panel = &w.data[pi * k * NR..(pi + 1) * k * NR];
+                let bias = &w.bias[pi * NR..(pi + 1) * NR];
+                let c0 = pi * NR;
+                let ncols = (n - c0).min(NR);
+                let at = p * n + c0;
+                let o = &mut out[at..];
+                match m {
+                    6 => micro::<6>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                    5 => micro::<5>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                    4 => micro::<4>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                    3 => micro::<3>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                    2 => micro::<2>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                    _ => micro::<1>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                }
+            }
+            p += m;
+        }
+    }
+}
+
+/// The SIMD level the kernels run with, chosen once per inference.
+#[derive(Debug, Clone, Copy)]
+pub enum Level {
+    /// Portable loops (auto-vectorised for the build target).
+    Portable,
+    /// AVX2 + FMA (x86-64-v3) register blocks.
+    #[cfg(target_arch = "x86_64")]
+    V3(pulp::x86::V3),
+}
+
+impl Level {
+    /// The best level this CPU supports.
+    pub fn detect() -> Level {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = pulp::x86::V3::try_new() {
+            return Level::V3(v3);
+        }
+        Level::Portable
+    }
+}
+
+/// [`depthwise`] at a given SIMD level.
+#[inline(always)]
+pub fn depthwise_at(
+    level: Level,
+    input: &[f32],
+    g: &Geom,
+    filter: &[f32],
+    bias: &[f32],
+    ep: &Epilogue<'_>,
+    out: &mut [f32],
+) {
+    match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::V3(simd) if g.ic % 8 == 0 && g.win.kh <= v3::MAX_TAPS && g.win.kw <= v3::MAX_TAPS => {
+            v3::depthwise(simd, input, g, filter, bias, ep, out)
+        }
+        _ => depthwise(input, g, filter, bias, ep, out),
+    }
+}
+
+/// [`gemm`] at a given SIMD level.
+#[inline(always)]
+pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+    match level {
+        Level::Portable => gemm(a, rows, w, ep, out),
+        #[cfg(target_arch = "x86_64")]
+        Level::V3(simd) => v3::gemm(simd, a, rows, w, ep, out),
+    }
+}
+
+/// `out[p * n + co] = ep(bias[co] + sum_k a[p * k + kk] * W[kk, co])` for `rows` rows.
+#[inline(always)]
+pub fn gemm(a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+    let (k, n) = (w.k, w.n);
+    debug_assert!(a.len() >= rows * k && out.len() >= rows * n);
+    let panels = n.div_ceil(NR);
+    let mut p = 0;
+    while p < rows {
+        let m = (rows - p).min(MR);
+        let a_blk = &a[p * k..];
+        for pi in 0..panels {
+            let panel = &w.data[pi * k * NR..(pi + 1) * k * NR];
+            let bias = &w.bias[pi * NR..(pi + 1) * NR];
+            let c0 = pi * NR;
+            let ncols = (n - c0).min(NR);
+            let at = p * n + c0;
+            let o = &mut out[at..];
+            match m {
+                4 => micro::<4>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                3 => micro::<3>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                2 => micro::<2>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+                _ => micro::<1>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+            }
+        }
+        p += m;
+    }
+}
+
+/// Geometry of one window operator on one input, resolved at load.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Geom {
+    /// Input height, width, channels.
+    pub ih: usize,
+    /// Input width.
+    pub iw: usize,
+    /// Input channels.
+    pub ic: usize,
+    /// Output height.
+    pub oh: usize,
+    /// Output width.
+    pub ow: usize,
+    /// Padding before, top.
+    pub pt: usize,
+    /// Padding before, left.
+    pub pl: usize,
+    /// The window.
+    pub win: Window,
+}
+
+impl Geom {
+    /// Resolves output size and padding; `None` when the window does not fit.
+    pub fn new(ih: usize, iw: usize, ic: usize, win: Window) -> Option<Geom> {
+        let (oh, pt) = Window::out_and_pad(ih, win.kh, win.sh, win.dh, win.padding)?;
+        let (ow, pl) = Window::out_and_pad(iw, win.kw, win.sw, win.dw, win.padding)?;
+        Some(Geom {
+            ih,
+            iw,
+            ic,
+            oh,
+            ow,
+            pt,
+            pl,
+            win,
+        })
+    }
+    /// Input row for output row `oy` and tap `ky`, if inside the image.
+    #[inline(always)]
+    fn iy(&self, oy: usize, ky: usize) -> Option<usize> {
+        (oy * self.win.sh + ky * self.win.dh)
+            .checked_sub(self.pt)
+            .filter(|&y| y < self.ih)
+    }
+    #[inline(always)]
+    fn ix(&self, ox: usize, kx: usize) -> Option<usize> {
+        (ox * self.win.sw + kx * self.win.dw)
+            .checked_sub(self.pl)
+            .filter(|&x| x < self.iw)
+    }
+    /// Whether the window is a plain 1x1 stride-1 convolution (GEMM on the input).
+    pub fn is_pointwise(&self) -> bool {
+        self.win.kh == 1 && self.win.kw == 1 && self.win.sh == 1 && self.win.sw == 1 && self.pt == 0 && self.pl == 0
+    }
+    /// im2col length for this geometry.
+    pub fn im2col_len(&self) -> usize {
+        self.oh * self.ow * self.win.kh * self.win.kw * self.ic
+    }
+}
+
+/// Fills `col` (`[oh * ow][kh * kw * ic]`) with the input patches, zeros outside.
+#[inline(always)]
+pub fn im2col(input: &[f32], g: &Geom, col: &mut [f32]) {
+    let c = g.ic;
+    let kk = g.win.kh * g.win.kw * c;
+    for oy in 0..g.oh {
+        for ox in 0..g.ow {
+            let row = &mut col[(oy * g.ow + ox) * kk..(oy * g.ow + ox + 1) * kk];
+            for ky in 0..g.win.kh {
+                let seg = g.win.kw * c;
+                let dst = &mut row[ky * seg..(ky + 1) * seg];
+                let Some(iy) = g.iy(oy, ky) else {
+                    for d in dst.iter_mut() {
+                        *d = 0.0;
+                    }
+                    continue;
+                };
+                // With dilation 1 the taps of one kernel row are contiguous in the input.
+                let x0 = (ox * g.win.sw).checked_sub(g.pl);
+                if let (1, Some(x0)) = (g.win.dw, x0) {
+                    if x0 + g.win.kw <= g.iw {
+                        let src = &input[(iy * g.iw + x0) * c..(iy * g.iw + x0) * c + seg];
+                        for (d, &v) in dst.iter_mut().zip(src) {
+                            *d = v;
+                        }
+                        continue;
+                    }
+                }
+                for kx in 0..g.win.kw {
+                    let d = &mut dst[kx * c..(kx + 1) * c];
+                    match g.ix(ox, kx) {
+                        Some(ix) => {
+                            for (d, &v) in d.iter_mut().zip(&input[(iy * g.iw + ix) * c..(iy * g.iw + ix + 1) * c]) {
+                                *d = v;
+                            }
+                        }
+                        None => {
+                            for d in d.iter_mut() {
+                                *d = 0.0;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `o += i * w` over one pixel's channels, in blocks of eight.
+#[inline(always)]
+fn fma_row(o: &mut [f32], i: &[f32], w: &[f32]) {
+    let mut oc = o.chunks_exact_mut(8);
+    let mut ic = i.chunks_exact(8);
+    let mut wc = w.chunks_exact(8);
+    for ((o8, i8), w8) in (&mut oc).zip(&mut ic).zip(&mut wc) {
+        let mut acc = [0.0f32; 8];
+        acc.copy_from_slice(o8);
+        for j in 0..8 {
+            acc[j] = i8[j].mul_add(w8[j], acc[j]);
+        }
+        o8.copy_from_slice(&acc);
+    }
+    for ((d, &x), &y) in oc.into_remainder().iter_mut().zip(ic.remainder()).zip(wc.remainder()) {
+        *d = x.mul_add(y, *d);
+    }
+}
+
+/// Output columns `ox` whose tap at offset `off = kx * dw` lands inside the input:
+/// `0 <= ox * sw + off - pl < iw`.
+#[inline(always)]
+fn valid_cols(g: &Geom, off: usize) -> (usize, usize) {
+    let sw = g.win.sw;
+    let lo = if g.pl > off { (g.pl - off).div_ceil(sw) } else { 0 };
+    let hi = if g.iw + g.pl > off {
+        (g.iw + g.pl - off).div_ceil(sw)
+    } else {
+        0
+    };
+    (lo, hi.min(g.ow))
+}
+
+/// Depthwise convolution (depth multiplier 1): filter `[kh * kw][c]`, bias `[c]`.
+/// Row by row: the output row (in L1) accumulates each tap over its valid columns.
+#[inline(always)]
+pub fn depthwise(input: &[f32], g: &Geom, filter: &[f32], bias: &[f32], ep: &Epilogue<'_>, out: &mut [f32]) {
+    let c = g.ic;
+    let row_len = g.ow * c;
+    for oy in 0..g.oh {
+        let orow = &mut out[oy * row_len..(oy + 1) * row_len];
+        for px in orow.chunks_exact_mut(c) {
+            let mut pc = px.chunks_exact_mut(8);
+            let mut bc = bias[..c].chunks_exact(8);
+            for (d, b) in (&mut pc).zip(&mut bc) {
+                let mut t = [0.0f32; 8];
+                t.copy_from_slice(b);
+                d.copy_from_slice(&t);
+            }
+            for (d, &b) in pc.into_remainder().iter_mut().zip(bc.remainder()) {
+                *d = b;
+            }
+        }
+        for ky in 0..g.win.kh {
+            let Some(iy) = g.iy(oy, ky) else { continue };
+            let irow = &input[iy * g.iw * c..(iy + 1) * g.iw * c];
+            for kx in 0..g.win.kw {
+                let wt = &filter[(ky * g.win.kw + kx) * c..(ky * g.win.kw + kx + 1) * c];
+                let off = kx * g.win.dw;
+                let (lo, hi) = valid_cols(g, off);
+                for ox in lo..hi {
+                    let ix = ox * g.win.sw + off - g.pl;
+                    fma_row(&mut orow[ox * c..(ox + 1) * c], &irow[ix * c..(ix + 1) * c], wt);
+                }
+            }
+        }
+        for (ox, px) in orow.chunks_exact_mut(c).enumerate() {
+            ep.apply(px, (oy * g.ow + ox) * c, 0);
+        }
+    }
+}
+
+/// Max pooling (padding taps are ignored, as in TFLite).
+#[inline(always)]
+pub fn max_pool(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
+    let c = g.ic;
+    for oy in 0..g.oh {
+        for ox in 0..g.ow {
+            let o = &mut out[(oy * g.ow + ox) * c..(oy * g.ow + ox + 1) * c];
+            o.fill(f32::NEG_INFINITY);
+            for ky in 0..g.win.kh {
+                let Some(iy) = g.iy(oy, ky) else { continue };
+                for kx in 0..g.win.kw {
+                    let Some(ix) = g.ix(ox, kx) else { continue };
+                    let ip = &input[(iy * g.iw + ix) * c..(iy * g.iw + ix + 1) * c];
+                    for (d, &x) in o.iter_mut().zip(ip) {
+                        *d = d.max(x);
+                    }
+                }
+            }
+            for d in o.iter_mut() {
+                *d = act.apply(*d);
+            }
+        }
+    }
+}
+
+/// Zero padding of a `[n, h, w, c]` tensor; `pads[axis] = [before, after]`.
+#[inline(always)]
+pub fn pad4(input: &[f32], shape: [usize; 4], pads: [[usize; 2]; 4], out: &mut [f32]) {
+    let [n, h, w, c] = shape;
+    let oh = h + pads[1][0] + pads[1][1];
+    let ow = w + pads[2][0] + pads[2][1];
+    let oc = c + pads[3][0] + pads[3][1];
+    out.fill(0.0);
+    for b in 0..n {
+        for y in 0..h {
+            for x in 0..w {
+                let src = ((b * h + y) * w + x) * c;
+                let dst = (((b + pads[0][0]) * oh + y + pads[1][0]) * ow + x + pads[2][0]) * oc + pads[3][0];
+                out[dst..dst + c].copy_from_slice(&input[src..src + c]);
+            }
+        }
+    }
+}
+
+/// Element-wise sum with a fused activation.
+#[inline(always)]
+pub fn add(a: &[f32], b: &[f32], act: Activation, out: &mut [f32]) {
+    for ((o, &x), &y) in out.iter_mut().zip(a).zip(b) {
+        *o = act.apply(x + y);
+    }
+}
+
+/// `max(x, 0)`.
+#[inline(always)]
+pub fn relu(a: &[f32], out: &mut [f32]) {
+    for (o, &x) in out.iter_mut().zip(a) {
+        *o = x.max(0.0);
+    }
+}
+
+/// Parametric ReLU with a per-channel slope: `x >= 0 ? x : alpha[c] * x`.
+#[inline(always)]
+pub fn prelu(a: &[f32], alpha: &[f32], out: &mut [f32]) {
+    let c = alpha.len();
+    for (o, x) in out.chunks_exact_mut(c).zip(a.chunks_exact(c)) {
+        for ((d, &v), &s) in o.iter_mut().zip(x).zip(alpha) {
+            *d = if v >= 0.0 { v } else { v * s };
+        }
+    }
+}
+
+/// `1 / (1 + exp(-x))`.
+#[inline(always)]
+pub fn logistic(a: &[f32], out: &mut [f32]) {
+    for (o, &x) in out.iter_mut().zip(a) {
+        *o = 1.0 / (1.0 + (-x).exp());
+    }
+}
+
+/// Slow, obvious implementations the fast kernels are tested against.
+pub mod reference {
+    use super::super::model::Activation;
+    use super::Geom;
+
+    /// Direct convolution with OHWI filters.
+    pub fn conv(input: &[f32], g: &Geom, filter: &[f32], bias: Option<&[f32]>, oc: usize, act: Activation) -> Vec<f32> {
+        let (kh, kw, ic) = (g.win.kh, g.win.kw, g.ic);
+        let mut out = vec![0.0; g.oh * g.ow * oc];
+        for oy in 0..g.oh {
+            for ox in 0..g.ow {
+                for co in 0..oc {
+                    let mut s = bias.map_or(0.0, |b| b[co]) as f64;
+                    for ky in 0..kh {
+                        for kx in 0..kw {
+                            let iy = (oy * g.win.sh + ky * g.win.dh) as isize - g.pt as isize;
+                            let ix = (ox * g.win.sw + kx * g.win.dw) as isize - g.pl as isize;
+                            if iy < 0 || ix < 0 || iy >= g.ih as isize || ix >= g.iw as isize {
+                                continue;
+                            }
+                            for ci in 0..ic {
+                                let x = input[((iy as usize) * g.iw + ix as usize) * ic + ci];
+                                let w = filter[((co * kh + ky) * kw + kx) * ic + ci];
+                                s += (x * w) as f64;
+                            }
+                        }
+                    }
+                    out[(oy * g.ow + ox) * oc + co] = act.apply(s as f32);
+                }
+            }
+        }
+        out
+    }
+
+    /// Direct depthwise convolution (`[1, KH, KW, C]` filters).
+    pub fn depthwise(input: &[f32], g: &Geom, filter: &[f32], bias: &[f32], act: Activation) -> Vec<f32> {
+        let c = g.ic;
+        let mut out = vec![0.0; g.oh * g.ow * c];
+        for oy in 0..g.oh {
+            for ox in 0..g.ow {
+                for ch in 0..c {
+                    let mut s = bias[ch] as f64;
+                    for ky in 0..g.win.kh {
+                        for kx in 0..g.win.kw {
+                            let iy = (oy * g.win.sh + ky * g.win.dh) as isize - g.pt as isize;
+                            let ix = (ox * g.win.sw + kx * g.win.dw) as isize - g.pl as isize;
+                            if iy < 0 || ix < 0 || iy >= g.ih as isize || ix >= g.iw as isize {
+                                continue;
+                            }
+                            s += (input[((iy as usize) * g.iw + ix as usize) * c + ch]
+                                * filter[(ky * g.win.kw + kx) * c + ch]) as f64;
+                        }
+                    }
+                    out[(oy * g.ow + ox) * c + ch] = act.apply(s as f32);
+                }
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::model::Padding;
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn rnd(rng: &mut ChaCha8Rng, n: usize) -> Vec<f32> {
+        (0..n).map(|_| rng.random_range(-1.0f32..1.0)).collect()
+    }
+
+    fn max_diff(a: &[f32], b: &[f32]) -> f32 {
+        assert_eq!(a.len(), b.len());
+        a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    }
+
+    #[test]
+    fn conv_fast_matches_reference_on_random_shapes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(16);
+        for case in 0..60 {
+            let k = [1usize, 2, 3, 5][case % 4];
+            let s = 1 + (case / 4) % 2;
+            let padding = if case % 3 == 0 { Padding::Valid } else { Padding::Same };
+            let (ih, iw) = (rng.random_range(k..12), rng.random_range(k..12));
+            let ic = rng.random_range(1..20);
+            let oc = rng.random_range(1..40);
+            let win = Window {
+                kh: k,
+                kw: k,
+                sh: s,
+                sw: s,
+                dh: 1,
+                dw: 1,
+                padding,
+            };
+            let Some(g) = Geom::new(ih, iw, ic, win) else { continue };
+            let input = rnd(&mut rng, ih * iw * ic);
+            let filter = rnd(&mut rng, oc * k * k * ic);
+            let bias = rnd(&mut rng, oc);
+            let act = if case % 2 == 0 {
+                Activation::Relu
+            } else {
+                Activation::None
+            };
+            let want = reference::conv(&input, &g, &filter, Some(&bias), oc, act);
+            let packed = Packed::new(&filter, Some(&bias), oc, k * k * ic);
+            let mut got = vec![0.0; g.oh * g.ow * oc];
+            if g.is_pointwise() {
+                gemm(&input, g.oh * g.ow, &packed, &Epilogue::act(act), &mut got);
+            } else {
+                let mut col = vec![0.0; g.im2col_len()];
+                im2col(&input, &g, &mut col);
+                gemm(&col, g.oh * g.ow, &packed, &Epilogue::act(act), &mut got);
+            }
+            let d = max_diff(&got, &want);
+            assert!(d < 1e-4, "case {case}: max difference {d}");
+        }
+    }
+
+    #[test]
+    fn simd_gemm_with_epilogue_matches_reference() {
+        let mut rng = ChaCha8Rng::seed_from_u64(18);
+        for case in 0..30 {
+            let rows = rng.random_range(1..40);
+            let k = rng.random_range(1..70);
+            let n = rng.random_range(1..50);
+            let a = rnd(&mut rng, rows * k);
+            let w = rnd(&mut rng, n * k);
+            let bias = rnd(&mut rng, n);
+            let res = rnd(&mut rng, rows * n);
+            let alpha = rnd(&mut rng, n);
+            let packed = Packed::new(&w, Some(&bias), n, k);
+            let ep = Epilogue {
+                act: if case % 2 == 0 {
+                    Activation::Relu6
+                } else {
+                    Activation::None
+                },
+                residual: Some(&res),
+                post: Post::Prelu(&alpha),
+            };
+            let mut want = vec![0.0f32; rows * n];
+            for p in 0..rows {
+                for co in 0..n {
+                    let mut s = bias[co] as f64;
+                    for kk in 0..k {
+                        s += (a[p * k + kk] * w[co * k + kk]) as f64;
+                    }
+                    let v = ep.act.apply(s as f32) + res[p * n + co];
+                    want[p * n + co] = if v >= 0.0 { v } else { v * alpha[co] };
+                }
+            }
+            for level in [Level::Portable, Level::detect()] {
+                let mut got = vec![0.0; rows * n];
+                gemm_at(level, &a, rows, &packed, &ep, &mut got);
+                let d = max_diff(&got, &want);
+                assert!(d < 1e-4, "case {case} {level:?}: max difference {d}");
+            }
+        }
+    }
+
+    #[test]
+    fn depthwise_fast_matches_reference_on_random_shapes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        for case in 0..40 {
+            let k = [3usize, 5, 2][case % 3];
+            let s = 1 + case % 2;
+            let padding = if case % 4 == 0 { Padding::Valid } else { Padding::Same };
+            let (ih, iw) = (rng.random_range(k..14), rng.random_range(k..14));
+            // Multiples of 8 exercise the register path, others the portable one.
+            let c = if case % 2 == 0 {
+                8 * rng.random_range(1..7)
+            } else {
+                rng.random_range(1..50)
+            };
+            let win = Window {
+                kh: k,
+                kw: k,
+                sh: s,
+                sw: s,
+                dh: 1,
+                dw: 1,
+                padding,
+            };
+            let Some(g) = Geom::new(ih, iw, c, win) else { continue };
+            let input = rnd(&mut rng, ih * iw * c);
+            let filter = rnd(&mut rng, k * k * c);
+            let bias = rnd(&mut rng, c);
+            let want = reference::depthwise(&input, &g, &filter, &bias, Activation::Relu6);
+            for level in [Level::Portable, Level::detect()] {
+                let mut got = vec![0.0; g.oh * g.ow * c];
+                depthwise_at(
+                    level,
+                    &input,
+                    &g,
+                    &filter,
+                    &bias,
+                    &Epilogue::act(Activation::Relu6),
+                    &mut got,
+                );
+                let d = max_diff(&got, &want);
+                assert!(d < 1e-5, "case {case} {level:?}: max difference {d}");
+            }
+        }
+    }
+
+    #[test]
+    fn pad_and_pool_small_cases() {
+        // 1x2x2x1 -> pad 1 everywhere spatially and 1 channel after.
+        let input = [1.0, 2.0, 3.0, 4.0];
+        let mut out = vec![-1.0; 4 * 4 * 2];
+        pad4(&input, [1, 2, 2, 1], [[0, 0], [1, 1], [1, 1], [0, 1]], &mut out);
+        assert_eq!(out[(4 + 1) * 2], 1.0);
+        assert_eq!(out[(2 * 4 + 2) * 2], 4.0);
+        assert_eq!(out.iter().filter(|&&v| v != 0.0).count(), 4);
+        let g = Geom::new(
+            4,
+            4,
+            2,
+            Window {
+                kh: 2,
+                kw: 2,
+                sh: 2,
+                sw: 2,
+                dh: 1,
+                dw: 1,
+                padding: Padding::Valid,
+            },
+        )
+        .unwrap_or_else(|| unreachable!());
+        let mut pooled = vec![0.0; 2 * 2 * 2];
+        max_pool(&out, &g, Activation::None, &mut pooled);
+        assert_eq!(pooled, vec![1.0, 0.0, 2.0, 0.0, 3.0, 0.0, 4.0, 0.0]);
+    }
+}
