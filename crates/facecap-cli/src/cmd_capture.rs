@@ -66,8 +66,10 @@ pub struct Args {
     /// Also write one OBJ per frame.
     #[arg(long)]
     pub obj: bool,
-    /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`).
-    #[arg(long, default_value_t = 0.0)]
+    /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`, px^2).
+    /// The default cuts the weights' jitter on resting stretches by a quarter with no lag at
+    /// blink onset (docs/expressions.md, "Temporal"); 0 turns it off.
+    #[arg(long, default_value_t = 100.0)]
     pub temporal: f64,
     /// Smooth landmarks with the One Euro filter (less jitter on still faces, some lag
     /// on fast motion; off by default, see docs/tracking.md).
