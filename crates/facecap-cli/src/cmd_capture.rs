@@ -87,10 +87,6 @@ pub struct Args {
     /// a frame index where the subject's face is at rest. See docs/capture.md.
     #[arg(long, default_value = "auto")]
     pub neutral: String,
-    /// Solve without the rig's measured default priors (unseen shapes held at 0, ridge by
-    /// observability, exclusive antagonists; see docs/expressions.md). For comparisons.
-    #[arg(long)]
-    pub no_priors: bool,
     /// ffmpeg decoder threads per video (0 = ffmpeg's choice). One thread per video
     /// costs the least CPU per frame; decoding runs beside tracking either way.
     #[arg(long, default_value_t = 1)]
@@ -221,7 +217,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
         "obj": args.obj,
         "neutral": args.neutral,
-        "priors": !args.no_priors,
+        "priors": "observability defaults (facecap rig)",
     });
     Ok(Setup {
         rig_mesh,
@@ -235,7 +231,7 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         muscles,
         tensor,
         neutral,
-        use_priors: !args.no_priors,
+        use_priors: true,
         args_echo,
     })
 }
