@@ -305,8 +305,8 @@ mod tests {
         let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
         let mut subject = rig.clone();
         for l in 0..NUM_LANDMARKS {
-            subject.neutral[[l, 0]] += 0.25 * (l as f64 * 0.7).sin();
-            subject.neutral[[l, 1]] += 0.2 * (l as f64 * 1.3).cos();
+            subject.neutral[[l, 0]] += 0.6 * (l as f64 * 0.7).sin();
+            subject.neutral[[l, 1]] += 0.5 * (l as f64 * 1.3).cos();
         }
         let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
         let truth: Vec<Vec<f64>> = (0..60)
@@ -362,13 +362,13 @@ mod tests {
         // the identity itself is recovered in the image plane
         let err: f64 = (0..NUM_LANDMARKS)
             .map(|l| {
-                let tx = 0.25 * (l as f64 * 0.7).sin();
-                let ty = 0.2 * (l as f64 * 1.3).cos();
+                let tx = 0.6 * (l as f64 * 0.7).sin();
+                let ty = 0.5 * (l as f64 * 1.3).cos();
                 (fit.offsets[l].x - tx).hypot(fit.offsets[l].y - ty)
             })
             .sum::<f64>()
             / NUM_LANDMARKS as f64;
-        assert!(err < 0.03, "mean image-plane offset error {err} (offsets ~0.2)");
+        assert!(err < 0.06, "mean image-plane offset error {err} (offsets ~0.5)");
     }
 
     #[test]
