@@ -5,7 +5,8 @@
 //! Per video, in `DIR/<video-stem>/`: `landmarks.csv`, `pose.csv`, `weights.csv`
 //! (named columns), `livelink.csv` (Live Link Face layout, when the rig's shape names
 //! are ARKit names), `contractions.csv` (with `--muscles`), `tensor.csv` (with
-//! `--tensor`), `animation.glb`, `obj/frame_NNNNNN.obj` (with `--obj`), `report.html`
+//! `--tensor`), `openface.csv` (OpenFace 2.x layout), `animation.glb` (morph weights and head motion),
+//! `obj/frame_NNNNNN.obj` (with `--obj`), `report.html`
 //! with its images, and `summary.json`, written **last**: a folder without it is not a
 //! finished capture, and reruns skip only folders that have it (unless `--force`).
 //! Every file is written atomically (temporary file + rename), so an interrupt or a
@@ -17,15 +18,17 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
-use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_core::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow, POSE_COLUMNS};
-use facecap_core::gltf_io::MorphAnimation;
+use facecap_core::camera::{pose_row, Intrinsics};
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_core::landmarks::Landmarks68;
 use facecap_core::mesh::MorphMesh;
-use facecap_core::video::{open_source, Frame, SourceOptions};
-use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
-use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, Solution, SolveState};
+use facecap_pipeline::expression::{ExpressionResult, SolvedFrame};
+use facecap_pipeline::outputs::{ObjSpace, SolveOutputs};
+use facecap_pipeline::{
+    Calibrated, ExpressionSetup, ExpressionSink, FrameImages, LandmarkCsvSink, MuscleSetup, MuscleSink,
+    NeutralCalibration, RunControl, Sink, TensorSetup, TensorSink, TrackerPolicy, VideoTracker,
+};
+use facecap_solve::{AnySolver, BlendshapeRig, Method, ObjectiveParams};
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
 use serde_json::json;
@@ -62,9 +65,16 @@ pub struct Args {
     /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
     #[arg(long)]
     pub camera: Option<String>,
-    /// Also write one OBJ per frame.
+    /// Also write one OBJ per frame (`obj/frame_NNNNNN.obj`, rig space; see --obj-space).
     #[arg(long)]
     pub obj: bool,
+    /// Frame of the OBJs: `model` (the rig's, expression only) or `camera` (posed by
+    /// the head pose, camera axes). Implies --obj.
+    #[arg(long, value_name = "camera|model", value_parser = ["camera", "model"])]
+    pub obj_space: Option<String>,
+    /// Keep the head still in `animation.glb` (morph weights only, no node motion).
+    #[arg(long)]
+    pub still_head: bool,
     /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`).
     #[arg(long, default_value_t = 0.0)]
     pub temporal: f64,
@@ -90,42 +100,46 @@ pub struct Args {
     /// Number of frames on the report's contact sheet.
     #[arg(long, default_value_t = 12)]
     pub sheet_frames: usize,
-    /// No progress output.
-    #[arg(long)]
-    pub quiet: bool,
     /// Print a JSON summary of all videos on stdout.
     #[arg(long)]
     pub json: bool,
 }
 
-/// The solver's time-aligned per-frame output kept for the animation and report.
-#[derive(Debug, Clone)]
-struct FrameOut {
-    timestamp: f64,
-    success: bool,
-    confidence: f64,
-    landmarks: Option<Landmarks68>,
-    weights: Vec<f64>,
-    pose: Option<ModelToCamera>,
-    reprojection_px: f64,
-}
-
 /// Everything shared by all videos.
 struct Setup {
     rig_mesh: MorphMesh,
-    rig: BlendshapeRig,
+    expression: ExpressionSetup,
     rig_name: String,
-    method: Method,
-    objective: ObjectiveParams,
     camera: Option<Intrinsics>,
-    tracker: LandmarkTracker<facecap_landmarks::detect::FaceDetector, facecap_landmarks::ert::ShapePredictor>,
-    muscles: Option<crate::capture_extras::MuscleSetup>,
-    tensor: Option<crate::capture_extras::TensorSetup>,
-    neutral: crate::neutral::NeutralChoice,
+    tracker: VideoTracker,
+    muscles: Option<MuscleSetup>,
+    tensor: Option<TensorSetup>,
+    neutral: NeutralHook,
+    obj_space: Option<ObjSpace>,
     args_echo: serde_json::Value,
 }
 
-fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
+/// The neutral calibration of `crate::neutral` behind the pipeline's hook.
+struct NeutralHook(crate::neutral::NeutralChoice);
+
+impl NeutralCalibration for NeutralHook {
+    fn calibrate(
+        &self,
+        solver: &AnySolver,
+        rig: &BlendshapeRig,
+        camera: Intrinsics,
+        frames: &[(u64, Landmarks68)],
+    ) -> Result<Calibrated, facecap_pipeline::error::BoxError> {
+        let c = crate::neutral::calibrate(self.0, solver, rig, camera, frames)?;
+        Ok(Calibrated {
+            rig: c.rig,
+            report: c.report,
+        })
+    }
+}
+
+/// Parses `fx,fy,cx,cy`.
+pub(crate) fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
     let v: Vec<f64> = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())
@@ -143,6 +157,11 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     if !(args.temporal.is_finite() && args.temporal >= 0.0) {
         anyhow::bail!("--temporal must be finite and >= 0, got {}", args.temporal);
     }
+    let obj_space = match (&args.obj_space, args.obj) {
+        (Some(s), _) => Some(s.parse::<ObjSpace>()?),
+        (None, true) => Some(ObjSpace::Model),
+        (None, false) => None,
+    };
     let (rig_mesh, map, rig_name) = match &args.rig {
         Some(path) => {
             let map_path = args
@@ -165,33 +184,37 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     };
     objective.validate()?;
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
-    let detector = facecap_landmarks::detect::FaceDetector::default_model()?;
-    let ert_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
-        anyhow::anyhow!(
-            "{} is not in the model cache: run scripts/setup.sh",
-            facecap_core::paths::DLIB_68_MODEL
-        )
+    let tracker = VideoTracker::new(&TrackerPolicy {
+        smooth: args.smooth,
+        shape_model: None,
     })?;
-    // Sub-pixel output: dlib rounds to whole pixels, which adds jitter to tracking.
-    let ert = facecap_landmarks::ert::ShapePredictor::from_file_cached(&ert_path)?
-        .0
-        .with_params(facecap_landmarks::ert::ErtParams {
-            output: facecap_landmarks::ert::OutputPrecision::SubPixel,
-        });
-    let mut tracker_params = TrackerParams::default();
-    if args.smooth {
-        tracker_params.filter = Some(facecap_landmarks::tracker::one_euro::OneEuroParams::default());
-    }
-    let tracker = LandmarkTracker::new(detector, ert, tracker_params)?;
     let muscles = args
         .muscles
         .as_deref()
-        .map(|m| crate::capture_extras::MuscleSetup::new(m, &rig_mesh, &map))
+        .map(|m| -> anyhow::Result<MuscleSetup> {
+            let set = (m != "default")
+                .then(|| facecap_muscle::set::MuscleSet::from_json_file(Path::new(m)))
+                .transpose()?;
+            Ok(MuscleSetup::new(
+                set.as_ref(),
+                &rig_mesh,
+                &map,
+                facecap_muscle::track::SolveMode::Global,
+            )?)
+        })
         .transpose()?;
     let tensor = args
         .tensor
         .as_deref()
-        .map(|p| crate::capture_extras::TensorSetup::new(p, args.tensor_landmark_map.as_deref()))
+        .map(|p| -> anyhow::Result<TensorSetup> {
+            let model = facecap_tensor::model::TensorModel::load(p)?;
+            let map_path = args.tensor_landmark_map.as_deref().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--tensor needs --tensor-landmark-map (68 iBUG landmarks -> vertices of the tensor mesh)"
+                )
+            })?;
+            Ok(TensorSetup::new(&model, &LandmarkMap::from_json_file(map_path)?)?)
+        })
         .transpose()?;
     let args_echo = json!({
         "rig": rig_name,
@@ -201,20 +224,20 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "camera": args.camera,
         "muscles": args.muscles,
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
-        "obj": args.obj,
+        "obj": obj_space.map(|s| match s { ObjSpace::Model => "model", ObjSpace::Camera => "camera" }),
+        "still_head": args.still_head,
         "neutral": args.neutral,
     });
     Ok(Setup {
         rig_mesh,
-        rig,
+        expression: ExpressionSetup { rig, method, objective },
         rig_name,
-        method,
-        objective,
         camera,
         tracker,
         muscles,
         tensor,
-        neutral,
+        neutral: NeutralHook(neutral),
+        obj_space,
         args_echo,
     })
 }
@@ -247,7 +270,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
         .max(1);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build()?;
-    let progress = crate::progress::Progress::new(args.quiet);
+    let progress = crate::progress::Progress::new(crate::out::quiet());
     let t0 = Instant::now();
     let outcomes: Vec<(PathBuf, Outcome)> = pool.install(|| {
         args.videos
@@ -264,10 +287,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 } else {
                     match capture_one(video, &out_dir, &args, &setup, &interrupted, &progress) {
                         Ok(v) => Outcome::Done(v),
-                        Err(e) => {
-                            progress.line(&format!("FAILED {}: {e:#}", video.display()));
-                            Outcome::Failed(format!("{e:#}"))
-                        }
+                        Err(e) => Outcome::Failed(format!("{e:#}")),
                     }
                 };
                 (video.clone(), outcome)
@@ -282,28 +302,33 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             Outcome::Skipped(d) => report.push(json!({"video": video, "status": "skipped", "out": d})),
             Outcome::Failed(e) => {
                 all_ok = false;
+                // every error once, on stderr, also with --quiet
+                eprintln!("error: {}: {e}", video.display());
                 report.push(json!({"video": video, "status": "failed", "error": e}))
             }
         }
     }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}))?
-        );
-    } else if !args.quiet {
+        crate::out::println(&serde_json::to_string_pretty(
+            &json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}),
+        )?);
+    } else if !crate::out::quiet() {
         for (video, o) in &outcomes {
             match o {
-                Outcome::Done(v) => println!(
+                Outcome::Done(v) => crate::out::println(&format!(
                     "{}: {} frames, face on {}, {:.1} frames/s -> {}",
                     video.display(),
                     v["frames"],
                     v["faces_found"],
                     v["frames_per_second"].as_f64().unwrap_or(0.0),
                     args.out.join(video_stem(video)).display()
-                ),
-                Outcome::Skipped(d) => println!("{}: skipped (already captured in {})", video.display(), d.display()),
-                Outcome::Failed(e) => println!("{}: FAILED: {e}", video.display()),
+                )),
+                Outcome::Skipped(d) => crate::out::println(&format!(
+                    "{}: skipped (already captured in {})",
+                    video.display(),
+                    d.display()
+                )),
+                Outcome::Failed(_) => {}
             }
         }
     }
@@ -318,141 +343,10 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     })
 }
 
-/// One tracked frame, passed from the tracking to the solving stage.
-struct Tracked {
-    index: u64,
-    timestamp: f64,
-    /// The landmarks when tracking succeeded.
-    landmarks: Option<Landmarks68>,
-    confidence: f64,
-    /// The grey frame, for the frames shown on the report's contact sheet.
-    gray: Option<GrayImage>,
-}
-
-/// The solving stage of [`capture_one`]: per tracked frame, solve for pose and
-/// weights, write the CSV rows (landmarks, pose, weights, muscles, tensor) and keep
-/// what the animation and report need.
-struct SolveStage<'a> {
-    video: &'a Path,
-    progress: &'a crate::progress::Progress,
-    lm_csv: &'a mut FrameCsvWriter,
-    pose_csv: &'a mut FrameCsvWriter,
-    w_csv: &'a mut FrameCsvWriter,
-    muscle_run: Option<&'a mut crate::capture_extras::MuscleRun>,
-    tensor_run: Option<&'a mut crate::capture_extras::TensorRun>,
-    bar: crate::progress::Bar,
-    /// Whether `run` advances the progress bar (not when tracking already did).
-    count_progress: bool,
-    sheet: Vec<(u64, GrayImage, FrameOut)>,
-    frames: Vec<FrameOut>,
-    faces_found: u64,
-    timings: Timings,
-}
-
-impl SolveStage<'_> {
-    fn run(&mut self, solver: &AnySolver, queue: impl IntoIterator<Item = Tracked>) -> anyhow::Result<()> {
-        let n = solver.num_shapes();
-        let mut solver_ws = solver.workspace();
-        let mut solve_state = SolveState::new(n);
-        let mut solution = Solution::new(n);
-        let mut lm_values = [0.0; 2 * NUM_LANDMARKS];
-        let mut prev_weights = vec![0.0; n];
-        let nan_weights = vec![f64::NAN; n];
-        for msg in queue {
-            let lms = msg.landmarks;
-            landmark_values(lms.as_ref(), &mut lm_values);
-            self.lm_csv.write_row(&FrameRow {
-                frame: msg.index,
-                timestamp: msg.timestamp,
-                success: lms.is_some(),
-                confidence: msg.confidence,
-                values: &lm_values,
-            })?;
-            let t = Instant::now();
-            let mut out = FrameOut {
-                timestamp: msg.timestamp,
-                success: false,
-                confidence: msg.confidence,
-                landmarks: lms.clone(),
-                weights: prev_weights.clone(),
-                pose: None,
-                reprojection_px: f64::NAN,
-            };
-            if let Some(l) = &lms {
-                self.faces_found += 1;
-                match solver.solve_into(l, &mut solver_ws, &mut solve_state, &mut solution) {
-                    Ok(_) => {
-                        out.success = true;
-                        out.weights.copy_from_slice(&solution.weights);
-                        out.pose = solution.pose;
-                        out.reprojection_px = solution.reprojection_error(l);
-                        prev_weights.copy_from_slice(&solution.weights);
-                    }
-                    Err(e) => {
-                        self.progress.line(&format!(
-                            "{}: frame {}: solver failed: {e}",
-                            self.video.display(),
-                            msg.index
-                        ));
-                        solve_state.reset();
-                    }
-                }
-            } else {
-                solve_state.reset();
-            }
-            self.timings.solve += t.elapsed().as_secs_f64();
-            let pose_values = pose_row(out.pose.as_ref());
-            self.pose_csv.write_row(&FrameRow {
-                frame: msg.index,
-                timestamp: msg.timestamp,
-                success: out.success && out.pose.is_some(),
-                confidence: msg.confidence,
-                values: &pose_values,
-            })?;
-            self.w_csv.write_row(&FrameRow {
-                frame: msg.index,
-                timestamp: msg.timestamp,
-                success: out.success,
-                confidence: msg.confidence,
-                values: if out.success { &out.weights } else { &nan_weights },
-            })?;
-            if let Some(m) = self.muscle_run.as_deref_mut() {
-                let t = Instant::now();
-                m.frame(msg.index, msg.timestamp, lms.as_ref(), msg.confidence)?;
-                self.timings.muscles += t.elapsed().as_secs_f64();
-            }
-            if let Some(tr) = self.tensor_run.as_deref_mut() {
-                let t = Instant::now();
-                tr.frame(msg.index, msg.timestamp, lms.as_ref(), msg.confidence)?;
-                self.timings.tensor += t.elapsed().as_secs_f64();
-            }
-            if let Some(gray) = msg.gray {
-                self.sheet.push((msg.index, gray, out.clone()));
-            }
-            self.frames.push(out);
-            if self.count_progress {
-                self.bar.inc();
-            }
-        }
-        Ok(())
-    }
-}
-
 fn video_stem(p: &Path) -> String {
     p.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "video".into())
-}
-
-/// Per-stage wall times in seconds.
-#[derive(Debug, Default, Clone, Copy)]
-struct Timings {
-    decode: f64,
-    track: f64,
-    solve: f64,
-    muscles: f64,
-    tensor: f64,
-    write: f64,
 }
 
 fn capture_one(
@@ -464,14 +358,7 @@ fn capture_one(
     progress: &crate::progress::Progress,
 ) -> anyhow::Result<serde_json::Value> {
     let started = Instant::now();
-    let mut timings = Timings::default();
-    let mut source = open_source(
-        video,
-        &SourceOptions {
-            threads: args.decode_threads,
-            ..SourceOptions::default()
-        },
-    )?;
+    let source = facecap_pipeline::open_video(video, args.decode_threads)?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     // A previous finished capture is being redone: remove its completion marker first.
@@ -480,173 +367,89 @@ fn capture_one(
         Some(c) => c,
         None => Intrinsics::default_for_frame(info.width, info.height)?,
     };
-    let solver = AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?;
-    let tracker = &setup.tracker;
-    let mut tracker_ws = tracker.new_workspace();
-    let mut tracker_state = TrackerState::new();
-    let mut tracked = TrackedFrame::default();
-    let names: Vec<String> = solver.names().to_vec();
-
-    let mut lm_csv = FrameCsvWriter::create(out_dir.join("landmarks.csv"), &landmark_columns())?;
-    let mut pose_csv = FrameCsvWriter::create(out_dir.join("pose.csv"), &POSE_COLUMNS)?;
-    let mut w_csv = FrameCsvWriter::create(out_dir.join("weights.csv"), &names)?;
-    let mut muscle_run = setup.muscles.as_ref().map(|m| m.start(out_dir, camera)).transpose()?;
-    let mut tensor_run = setup.tensor.as_ref().map(|t| t.start(out_dir, camera)).transpose()?;
-
     let sheet_every = info
         .frame_count
-        .map(|n| (n as usize / args.sheet_frames.max(1)).max(1))
+        .map(|n| (n / args.sheet_frames.max(1) as u64).max(1))
         .unwrap_or(30);
-    let sheet_max = args.sheet_frames.max(1);
-    let calibrate = setup.neutral != crate::neutral::NeutralChoice::None;
-    // Three stages on their own threads, connected by short bounded queues:
-    // decoding (reads the ffmpeg pipe into reused frames), tracking (this thread),
-    // and solving + writing the per-frame outputs. Each stage's busy time is
-    // reported; frames stay in order because every queue is FIFO.
-    let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(4);
-    let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
-    let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(16);
-    let mut stage = SolveStage {
-        video,
-        progress,
-        lm_csv: &mut lm_csv,
-        pose_csv: &mut pose_csv,
-        w_csv: &mut w_csv,
-        muscle_run: muscle_run.as_mut(),
-        tensor_run: tensor_run.as_mut(),
-        bar: progress.bar(video, info.frame_count),
-        count_progress: true,
-        sheet: Vec::new(),
-        frames: Vec::new(),
-        faces_found: 0,
-        timings: Timings::default(),
+    let calibrate = setup.neutral.0 != crate::neutral::NeutralChoice::None;
+    let mut landmarks = LandmarkCsvSink::create(out_dir.join("landmarks.csv"))?;
+    let mut solve = ExpressionSink::create(
+        out_dir,
+        &setup.expression,
+        Some(camera),
+        calibrate.then_some(&setup.neutral as &dyn NeutralCalibration),
+        FrameImages::Sample {
+            every: sheet_every,
+            max: args.sheet_frames.max(1),
+        },
+    )?;
+    let mut muscles = setup
+        .muscles
+        .as_ref()
+        .map(|m| MuscleSink::create(out_dir, m, camera))
+        .transpose()?;
+    let mut tensor = setup
+        .tensor
+        .as_ref()
+        .map(|t| TensorSink::create(out_dir, t, camera))
+        .transpose()?;
+    let mut bar = progress.bar(video, info.frame_count);
+    let run = {
+        let mut sinks: Vec<&mut dyn Sink> = vec![&mut landmarks, &mut solve];
+        if let Some(m) = muscles.as_mut() {
+            sinks.push(m);
+        }
+        if let Some(t) = tensor.as_mut() {
+            sinks.push(t);
+        }
+        let mut inc = || bar.inc();
+        setup.tracker.run(
+            source,
+            &mut sinks,
+            &mut RunControl {
+                interrupted: Some(interrupted),
+                on_frame: Some(&mut inc),
+            },
+        )?
     };
-    let (decode_result, track_result, stage_result) = std::thread::scope(|scope| {
-        let decoder = scope.spawn(move || -> anyhow::Result<f64> {
-            let mut busy = 0.0;
-            loop {
-                let mut frame = recycle_rx.try_recv().unwrap_or_default();
-                let t = Instant::now();
-                if !source.read_into(&mut frame)? {
-                    return Ok(busy);
-                }
-                busy += t.elapsed().as_secs_f64();
-                if frame_tx.send(frame).is_err() {
-                    // the tracking stage stopped (error or interrupt)
-                    return Ok(busy);
-                }
-            }
-        });
-        let stage_ref = &mut stage;
-        let solver_ref = &solver;
-        let worker = scope.spawn(move || -> anyhow::Result<Vec<Tracked>> {
-            if calibrate {
-                // the neutral calibration needs every frame's landmarks first; the
-                // progress bar follows tracking here, the solving pass does not move it
-                stage_ref.count_progress = false;
-                Ok(track_rx.into_iter().inspect(|_| stage_ref.bar.inc()).collect())
-            } else {
-                stage_ref.run(solver_ref, track_rx).map(|()| Vec::new())
-            }
-        });
-        let track_result = (|| -> anyhow::Result<f64> {
-            let mut busy = 0.0;
-            let mut sent_sheet = 0usize;
-            for frame in frame_rx {
-                if interrupted.load(Ordering::SeqCst) {
-                    anyhow::bail!("interrupted at frame {}", frame.index);
-                }
-                let t = Instant::now();
-                tracker.track_into(
-                    &frame.gray,
-                    frame.timestamp_s,
-                    &mut tracker_ws,
-                    &mut tracker_state,
-                    &mut tracked,
-                )?;
-                busy += t.elapsed().as_secs_f64();
-                let keep = frame.index as usize % sheet_every == 0 && sent_sheet < sheet_max;
-                sent_sheet += usize::from(keep);
-                let msg = Tracked {
-                    index: frame.index,
-                    timestamp: frame.timestamp_s,
-                    landmarks: tracked.success.then(|| tracked.landmarks.clone()),
-                    confidence: tracked.confidence,
-                    gray: keep.then(|| frame.gray.clone()),
-                };
-                if track_tx.send(msg).is_err() {
-                    // the solving stage stopped: its error is reported below
-                    break;
-                }
-                let _ = recycle_tx.send(frame);
-            }
-            Ok(busy)
-        })();
-        // closing the queue ends the solving stage
-        drop(track_tx);
-        let stage_result = worker
-            .join()
-            .unwrap_or_else(|_| Err(anyhow::anyhow!("the solving stage panicked")));
-        let decode_result = decoder
-            .join()
-            .unwrap_or_else(|_| Err(anyhow::anyhow!("the decoding stage panicked")));
-        (decode_result, track_result, stage_result)
-    });
-    // the tracking error (e.g. an interrupt) first, then the others
-    timings.track = track_result?;
-    let collected = stage_result?;
-    // a decoding error (a corrupt or truncated video) ends the capture before any
-    // calibration work
-    timings.decode = decode_result?;
-    let mut neutral_report = serde_json::Value::Null;
-    if calibrate {
-        let tracked_frames: Vec<(u64, Landmarks68)> = collected
-            .iter()
-            .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
-            .collect();
-        let cal = crate::neutral::calibrate(setup.neutral, &solver, &setup.rig, camera, &tracked_frames)?;
-        neutral_report = cal.report;
-        let calibrated = AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?;
-        stage.run(&calibrated, collected)?;
-    }
-    let SolveStage {
-        bar,
-        sheet,
-        frames,
-        faces_found,
-        timings: stage_timings,
-        ..
-    } = stage;
-    timings.solve = stage_timings.solve;
-    timings.muscles = stage_timings.muscles;
-    timings.tensor = stage_timings.tensor;
     bar.finish();
-    if frames.is_empty() {
+    if run.frames == 0 {
         anyhow::bail!("{}: no frames decoded", video.display());
     }
     let t = Instant::now();
-    lm_csv.finish()?;
-    pose_csv.finish()?;
-    w_csv.finish()?;
-    if let Some(m) = muscle_run {
+    landmarks.finish()?;
+    let result = solve.finish()?;
+    for (frame, e) in &result.failures {
+        progress.line(&format!("{}: frame {frame}: solver failed: {e}", video.display()));
+    }
+    if let Some(m) = muscles {
         m.finish()?;
     }
-    if let Some(tr) = tensor_run {
+    if let Some(tr) = tensor {
         tr.finish()?;
     }
-    let livelink = crate::livelink::write_if_arkit(
-        &out_dir.join("livelink.csv"),
-        &names,
-        &frames_weights(&frames),
-        &frame_times(&frames),
+    let fps = if info.fps.is_finite() && info.fps > 0.0 {
+        info.fps
+    } else {
+        facecap_pipeline::livelink::FALLBACK_FPS
+    };
+    let written = facecap_pipeline::outputs::write_solve_outputs(
+        out_dir,
+        &setup.expression.rig,
+        &setup.rig_mesh,
+        &result,
+        &SolveOutputs {
+            obj: setup.obj_space,
+            still_head: args.still_head,
+            fps,
+            rig_unit_mm: facecap_pipeline::openface::RIG_UNIT_MM,
+        },
     )?;
-    write_animation(out_dir, &setup.rig_mesh, &frames)?;
-    if args.obj {
-        write_objs(out_dir, &setup.rig_mesh, &frames)?;
-    }
-    let truth = crate::truth::evaluate(video, &names, &frames_for_truth(&frames))?;
-    write_report(out_dir, video, setup, &names, &frames, &sheet, truth.as_ref())?;
-    timings.write += t.elapsed().as_secs_f64();
+    let frames = &result.frames;
+    let names = &result.names;
+    let truth = crate::truth::evaluate(video, names, &frames_for_truth(frames))?;
+    write_report(out_dir, video, setup, names, &result, truth.as_ref())?;
+    let write_seconds = t.elapsed().as_secs_f64();
     let elapsed = started.elapsed().as_secs_f64();
     let reproj: Vec<f64> = frames
         .iter()
@@ -656,59 +459,49 @@ fn capture_one(
     let summary = json!({
         "video": video.display().to_string(),
         "frames": frames.len(),
-        "faces_found": faces_found,
+        "faces_found": result.faces_found,
         "success_frames": frames.iter().filter(|f| f.success).count(),
         "width": info.width,
         "height": info.height,
         "fps": info.fps,
+        "frame_count": frames.len(),
         "codec": info.codec,
         "frames_per_second": frames.len() as f64 / elapsed.max(1e-9),
         "seconds": elapsed,
         "timings_seconds": {
-            "decode": timings.decode, "track": timings.track, "solve": timings.solve,
-            "muscles": timings.muscles, "tensor": timings.tensor, "write_outputs": timings.write,
+            "decode": run.decode_seconds, "track": run.track_seconds, "solve": run.sink_seconds("solve"),
+            "muscles": run.sink_seconds("muscles"), "tensor": run.sink_seconds("tensor"),
+            "landmarks_csv": run.sink_seconds("landmarks"), "write_outputs": write_seconds,
         },
         "mean_reprojection_px": if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 },
         "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "shapes": names,
-        "livelink_csv": livelink,
+        "livelink_csv": written.livelink,
+        "head_animated": written.head_animated,
+        "animation_fps": fps,
         "truth": truth,
-        "neutral_calibration": neutral_report,
+        "neutral_calibration": result.neutral_report,
         "settings": setup.args_echo,
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},
     });
     let text = serde_json::to_string_pretty(&summary)?;
     facecap_core::atomic::write_atomic(out_dir.join("summary.json"), |w| w.write_all(text.as_bytes()))?;
+    crate::out::verbose(&format!(
+        "{}: busy seconds: decode {:.2}, track {:.2}, sinks {}; outputs {:.2}",
+        video.display(),
+        run.decode_seconds,
+        run.track_seconds,
+        run.sink_seconds
+            .iter()
+            .map(|(n, s)| format!("{n} {s:.2}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        write_seconds
+    ));
     Ok(summary)
 }
 
-/// One `pose.csv` row: translation (model units, camera axes x right, y down, z
-/// forward) and the head rotation *relative to facing the camera* as Euler angles in
-/// radians (`R = Rz Ry Rx`; Rx pitch, Ry yaw, Rz roll), like OpenFace. The rig is +Y up,
-/// +Z out of the face, so a face looking into the camera has model-to-camera rotation
-/// `F = diag(1, -1, -1)`; the reported rotation is `R F`, which is the identity then.
-pub(crate) fn pose_row(pose: Option<&ModelToCamera>) -> [f64; 6] {
-    match pose {
-        Some(p) => {
-            let t = p.tvec();
-            let flip = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, -1.0, -1.0));
-            let r = nalgebra::Rotation3::from_matrix_unchecked(p.0.rotation.to_rotation_matrix().matrix() * flip);
-            let (rx, ry, rz) = r.euler_angles();
-            [t.x, t.y, t.z, rx, ry, rz]
-        }
-        None => [f64::NAN; 6],
-    }
-}
-
-fn frames_weights(frames: &[FrameOut]) -> Vec<Vec<f64>> {
-    frames.iter().map(|f| f.weights.clone()).collect()
-}
-
-fn frame_times(frames: &[FrameOut]) -> Vec<f64> {
-    frames.iter().map(|f| f.timestamp).collect()
-}
-
-fn frames_for_truth(frames: &[FrameOut]) -> Vec<crate::truth::Estimate> {
+fn frames_for_truth(frames: &[SolvedFrame]) -> Vec<crate::truth::Estimate> {
     frames
         .iter()
         .map(|f| crate::truth::Estimate {
@@ -719,56 +512,20 @@ fn frames_for_truth(frames: &[FrameOut]) -> Vec<crate::truth::Estimate> {
         .collect()
 }
 
-/// Keyframe times must increase strictly: nudge repeated timestamps.
-fn keyframe_times(frames: &[FrameOut]) -> Vec<f32> {
-    let mut times: Vec<f32> = Vec::with_capacity(frames.len());
-    for f in frames {
-        let mut t = f.timestamp.max(0.0) as f32;
-        if let Some(&last) = times.last() {
-            if t <= last {
-                t = last + 1e-4;
-            }
-        }
-        times.push(t);
-    }
-    times
-}
-
-fn write_animation(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
-    let anim = MorphAnimation {
-        times_s: keyframe_times(frames),
-        weights: frames
-            .iter()
-            .map(|f| f.weights.iter().map(|&w| w as f32).collect())
-            .collect(),
-    };
-    facecap_core::gltf_io::write_glb(out_dir.join("animation.glb"), rig, Some(&anim))?;
-    Ok(())
-}
-
-fn write_objs(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
-    let dir = out_dir.join("obj");
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut posed = Vec::new();
-    let mut mesh = rig.base.clone();
-    for (i, f) in frames.iter().enumerate() {
-        rig.pose_into(&f.weights, &mut posed)?;
-        mesh.positions.clone_from(&posed);
-        mesh.compute_normals();
-        facecap_core::obj::write_obj(dir.join(format!("frame_{i:06}.obj")), &mesh)?;
-    }
-    Ok(())
-}
-
 fn write_report(
     out_dir: &Path,
     video: &Path,
     setup: &Setup,
     names: &[String],
-    frames: &[FrameOut],
-    sheet: &[(u64, GrayImage, FrameOut)],
+    result: &ExpressionResult,
     truth: Option<&serde_json::Value>,
 ) -> anyhow::Result<()> {
+    let frames = &result.frames;
+    let sheet: Vec<(u64, &GrayImage, &SolvedFrame)> = result
+        .sheet
+        .iter()
+        .map(|(k, g)| (frames[*k].index, g.as_ref(), &frames[*k]))
+        .collect();
     let dir = out_dir.join("report");
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     // Tiles are independent: render and encode them in parallel.
@@ -803,7 +560,7 @@ fn write_report(
         })
         .collect();
     let sheets = tiles.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
-    let times = frame_times(frames);
+    let times: Vec<f64> = frames.iter().map(|f| f.timestamp).collect();
     let mut plots = Vec::new();
     let mut svg = |file: &str, title: &str, series: Vec<(String, Vec<f64>)>| -> anyhow::Result<()> {
         let s = report::svg_line_plot(title, &times, &series, 1000, 320);
@@ -881,7 +638,7 @@ fn write_report(
             frames.iter().filter(|f| f.success).count().to_string(),
         ),
         ("rig".to_string(), setup.rig_name.clone()),
-        ("solver".to_string(), setup.method.name().to_string()),
+        ("solver".to_string(), setup.expression.method.name().to_string()),
     ];
     if let Some(t) = truth {
         rows.push(("error against ground truth".to_string(), t.to_string()));

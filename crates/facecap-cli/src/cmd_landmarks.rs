@@ -54,6 +54,9 @@ pub struct Args {
     /// Also write `<stem>_landmarks.png` with the boxes and points drawn.
     #[arg(long)]
     pub draw: bool,
+    /// Video mode: smooth landmarks with the One Euro filter (as `capture --smooth`).
+    #[arg(long)]
+    pub smooth: bool,
     /// Use this face box (dlib inclusive `left,top,right,bottom`, 0-based pixels)
     /// for every image instead of running the face detector.
     #[arg(long = "box", value_name = "L,T,R,B", value_parser = parse_box)]
@@ -74,6 +77,8 @@ pub struct VideoJob {
     pub draw: bool,
     /// `--model`, when given (else the cache's 68-point model).
     pub model: Option<PathBuf>,
+    /// `--smooth` was given.
+    pub smooth: bool,
 }
 
 fn parse_box(s: &str) -> Result<Rect, String> {
@@ -119,6 +124,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             out_dir: args.out.clone(),
             draw: args.draw,
             model: args.model.clone(),
+            smooth: args.smooth,
         };
         return run_video(&job);
     }

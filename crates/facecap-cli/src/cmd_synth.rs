@@ -172,7 +172,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         })?,
     };
     let paths = make_synth(&photo, &args.out, args.frames, args.fps, args.seed)?;
-    println!("wrote {} and {}", paths.0.display(), paths.1.display());
+    outln!("wrote {} and {}", paths.0.display(), paths.1.display());
     Ok(std::process::ExitCode::SUCCESS)
 }
 

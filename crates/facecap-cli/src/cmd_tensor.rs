@@ -135,7 +135,7 @@ fn run_build(a: BuildArgs) -> anyhow::Result<std::process::ExitCode> {
     )?;
     let t2 = std::time::Instant::now();
     model.save(&a.out, a.f32)?;
-    println!(
+    outln!(
         "tensor model: {} vertices, {} identities, {} expressions; kept {} x {} modes ({:.4} / {:.4} of the energy); database {:.2} s, HOSVD {:.2} s -> {}",
         data.num_vertices(),
         data.num_identities(),
@@ -164,7 +164,7 @@ fn run_generate(a: GenerateArgs) -> anyhow::Result<std::process::ExitCode> {
     let w_id = weights_or_uniform(a.id, model.num_identities(), "id")?;
     let w_exp = weights_or_uniform(a.exp, model.num_expressions(), "exp")?;
     write_mesh(&model, &w_id, &w_exp, &a.out)?;
-    println!("wrote {}", a.out.display());
+    outln!("wrote {}", a.out.display());
     Ok(std::process::ExitCode::SUCCESS)
 }
 
@@ -197,13 +197,13 @@ fn run_fit(a: FitArgs) -> anyhow::Result<std::process::ExitCode> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let fitted = fit_video(&a.video, a.landmarks.as_deref(), &a.fit, &model)?;
     let path = a.out.join("tensor.csv");
-    write_tensor_csv(&path, &model, &fitted.records, &fitted.states, &fitted.rms_all)?;
+    write_tensor_csv(&path, &model, &fitted)?;
     write_reprojection_csv(&a.out.join("reprojection.csv"), &fitted)?;
     if a.write_landmarks {
         write_landmarks_csv(&a.out.join("landmarks.csv"), &fitted.records)?;
     }
     print_summary(&a.video, &fitted);
-    println!(
+    outln!(
         "wrote {} and {}",
         path.display(),
         a.out.join("reprojection.csv").display()
