@@ -37,6 +37,9 @@ use crate::report;
 
 /// Arguments of `facecap capture`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap capture clip.mp4 --out captures/\n  facecap capture a.mp4 b.mp4 --out captures/ --solver exact3d --rig ict.glb --landmark-map ict_landmarks68.json --obj-space camera"
+)]
 pub struct Args {
     /// Input videos (files, Y4M, or folders of images).
     #[arg(required = true)]
@@ -287,7 +290,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 } else {
                     match capture_one(video, &out_dir, &args, &setup, &interrupted, &progress) {
                         Ok(v) => Outcome::Done(v),
-                        Err(e) => Outcome::Failed(format!("{e:#}")),
+                        Err(e) => Outcome::Failed(crate::error_text(&e)),
                     }
                 };
                 (video.clone(), outcome)

@@ -30,6 +30,7 @@ use serde::Serialize;
 
 /// Arguments of `facecap info`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  facecap info clip.mp4\n  facecap info --json frames_folder/")]
 pub struct Args {
     /// Video files, Y4M files, image folders or images.
     #[arg(required = true, value_name = "VIDEO")]

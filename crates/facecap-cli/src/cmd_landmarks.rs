@@ -40,6 +40,9 @@ pub enum GreyMode {
 
 /// Arguments of `facecap landmarks`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap landmarks photo.jpg --out pts/ --draw\n  facecap landmarks clip.mp4 --out tracked/"
+)]
 pub struct Args {
     /// Input images (or one video file).
     #[arg(required = true)]

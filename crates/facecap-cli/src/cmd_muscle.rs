@@ -42,6 +42,9 @@ pub enum Command {
 
 /// `facecap muscle bake`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap muscle bake --mesh ict.glb --landmark-map ict_landmarks68.json --out ict_muscles.glb"
+)]
 pub struct BakeArgs {
     /// Mesh (.glb/.gltf or .obj).
     #[arg(long)]
@@ -62,6 +65,9 @@ pub struct BakeArgs {
 
 /// `facecap muscle track`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap muscle track clip.mp4 --mesh ict.glb --landmark-map ict_landmarks68.json --out muscles/ --report"
+)]
 pub struct TrackArgs {
     /// Video file (or image folder).
     pub video: PathBuf,

@@ -31,6 +31,7 @@ use crate::default_rig::{DEFAULT_SHAPES, MEAN_FACE_68_CM};
 
 /// Arguments of `facecap synth`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  facecap synth --out demo/ --frames 90 --seed 0")]
 pub struct Args {
     /// Face photo (default: the astronaut portrait in the model cache).
     #[arg(long)]

@@ -22,6 +22,9 @@ pub enum Command {
 
 /// Arguments of `facecap tensor build`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap tensor build --identity-rig ict_face_identity100.glb --expression-rig ict_face_arkit53.glb --out ict.fctensor"
+)]
 pub struct BuildArgs {
     /// Folder of `<identity>_<expression>.obj` meshes (identity = text before the first `_`).
     #[arg(long, conflicts_with_all = ["identity_rig", "expression_rig"])]
@@ -60,6 +63,7 @@ pub struct BuildArgs {
 
 /// Arguments of `facecap tensor generate`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  facecap tensor generate --model ict.fctensor --out face.obj")]
 pub struct GenerateArgs {
     /// Model file from `facecap tensor build`.
     #[arg(long)]
@@ -77,6 +81,9 @@ pub struct GenerateArgs {
 
 /// Arguments of `facecap tensor fit`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap tensor fit clip.mp4 --model ict.fctensor --landmark-map ict_landmarks68.json --out fit/"
+)]
 pub struct FitArgs {
     /// Input video (or image folder).
     pub video: PathBuf,

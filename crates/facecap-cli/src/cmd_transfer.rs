@@ -34,6 +34,9 @@ use crate::cmd_tensor_fit::{fit_video, print_summary, write_reprojection_csv, wr
 
 /// Arguments of `facecap transfer`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap transfer performer.mp4 target.mp4 --model ict.fctensor --landmark-map ict_landmarks68.json --out xfer/"
+)]
 pub struct TransferArgs {
     /// Source video (the performance).
     pub source: PathBuf,

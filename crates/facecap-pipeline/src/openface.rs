@@ -135,6 +135,13 @@ fn posed_landmarks(
     }
 }
 
+fn csv_err(path: &Path, e: ::csv::Error) -> Error {
+    match e.into_kind() {
+        ::csv::ErrorKind::Io(io) => Error::Core(facecap_core::Error::io(path, io)),
+        other => parse_err(path, format!("{other:?}")),
+    }
+}
+
 fn parse_err(path: &Path, reason: impl Into<String>) -> Error {
     Error::Core(facecap_core::Error::parse("landmark CSV", path, reason.into()))
 }
@@ -151,8 +158,8 @@ pub fn read_landmarks(path: &Path) -> Result<Vec<LandmarkRecord>> {
         .trim(::csv::Trim::All)
         .flexible(false)
         .from_path(path)
-        .map_err(|e| parse_err(path, e.to_string()))?;
-    let headers = rdr.headers().map_err(|e| parse_err(path, e.to_string()))?.clone();
+        .map_err(|e| csv_err(path, e))?;
+    let headers = rdr.headers().map_err(|e| csv_err(path, e))?.clone();
     let col = |name: &str| -> Result<usize> {
         headers
             .iter()
