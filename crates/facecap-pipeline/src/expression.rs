@@ -61,6 +61,9 @@ pub trait NeutralCalibration: Send + Sync {
     ) -> std::result::Result<Calibrated, BoxError>;
 }
 
+/// A calibration hook and the clip's tracked frames (frame index, landmarks).
+pub type CalibrationInput<'a> = (&'a dyn NeutralCalibration, &'a [(u64, Landmarks68)]);
+
 /// The one place the expression solver is set up: the generic rig's solver, or, with a
 /// calibration and the clip's tracked frames, the solver of the calibrated rig.
 /// Returns the solver and the calibration's report (`null` without one).
@@ -70,7 +73,7 @@ pub trait NeutralCalibration: Send + Sync {
 pub fn build_expression_solve(
     setup: &ExpressionSetup,
     camera: Intrinsics,
-    calibration: Option<(&dyn NeutralCalibration, &[(u64, Landmarks68)])>,
+    calibration: Option<CalibrationInput<'_>>,
 ) -> Result<(AnySolver, serde_json::Value)> {
     let solver = AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?;
     let Some((cal, frames)) = calibration else {
