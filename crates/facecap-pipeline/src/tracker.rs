@@ -28,6 +28,15 @@ use crate::sink::{Sink, TrackedFace};
 const DECODED_QUEUE: usize = 4;
 /// Queue length between tracking and the sinks (frames).
 const TRACKED_QUEUE: usize = 16;
+/// Largest number of sinks in one run (one bit each in [`Tracked::wanted`]).
+pub const MAX_SINKS: usize = 64;
+
+/// A tracked frame on its way to the sinks, with which sinks asked for its image.
+struct Tracked {
+    face: TrackedFace,
+    /// Bit `k`: sink `k` asked for this frame's image.
+    wanted: u64,
+}
 
 /// How every command tracks landmarks.
 ///
@@ -165,11 +174,14 @@ impl VideoTracker {
         control: &mut RunControl<'_>,
     ) -> Result<RunReport> {
         let info = source.info().clone();
+        if sinks.len() > MAX_SINKS {
+            return Err(Error::invalid("sinks", sinks.len(), format!("at most {MAX_SINKS}")));
+        }
         let wants: Vec<_> = sinks.iter().map(|s| s.images()).collect();
         let names: Vec<String> = sinks.iter().map(|s| s.name().to_string()).collect();
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(DECODED_QUEUE);
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
-        let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<TrackedFace>(TRACKED_QUEUE);
+        let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(TRACKED_QUEUE);
         let tracker = &self.tracker;
         let mut ws = tracker.new_workspace();
         let mut state = TrackerState::new();
@@ -204,14 +216,15 @@ impl VideoTracker {
                     let t = Instant::now();
                     tracker.track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut tracked)?;
                     busy += t.elapsed().as_secs_f64();
-                    let mut keep = false;
-                    for (w, n) in wants.iter().zip(taken.iter_mut()) {
+                    let mut wanted = 0u64;
+                    for (k, (w, n)) in wants.iter().zip(taken.iter_mut()).enumerate() {
                         if w.wants(frame.index, *n) {
                             *n += 1;
-                            keep = true;
+                            wanted |= 1 << k;
                         }
                     }
-                    let msg = TrackedFace {
+                    let keep = wanted != 0;
+                    let face = TrackedFace {
                         index: frame.index,
                         timestamp: frame.timestamp_s.max(0.0),
                         landmarks: tracked.success.then(|| tracked.landmarks.clone()),
@@ -219,6 +232,7 @@ impl VideoTracker {
                         rect: tracked.rect,
                         gray: keep.then(|| Arc::new(frame.gray.clone())),
                     };
+                    let msg = Tracked { face, wanted };
                     frames += 1;
                     faces += u64::from(tracked.success);
                     if track_tx.send(msg).is_err() {
@@ -254,13 +268,23 @@ impl VideoTracker {
     }
 }
 
-/// The sink stage: every frame to every sink in order, then `end`.
-fn feed(sinks: &mut [&mut dyn Sink], queue: impl IntoIterator<Item = TrackedFace>) -> Result<Vec<f64>> {
+/// The sink stage: every frame to every sink in order, then `end`. A sink sees a
+/// frame's image only when it asked for it.
+fn feed(sinks: &mut [&mut dyn Sink], queue: impl IntoIterator<Item = Tracked>) -> Result<Vec<f64>> {
     let mut busy = vec![0.0; sinks.len()];
     for msg in queue {
-        for (s, b) in sinks.iter_mut().zip(busy.iter_mut()) {
+        let mut without_image: Option<TrackedFace> = None;
+        for (k, (s, b)) in sinks.iter_mut().zip(busy.iter_mut()).enumerate() {
+            let face = if msg.face.gray.is_none() || msg.wanted & (1 << k) != 0 {
+                &msg.face
+            } else {
+                without_image.get_or_insert_with(|| TrackedFace {
+                    gray: None,
+                    ..msg.face.clone()
+                })
+            };
             let t = Instant::now();
-            s.frame(&msg)?;
+            s.frame(face)?;
             *b += t.elapsed().as_secs_f64();
         }
     }
@@ -282,13 +306,16 @@ pub fn replay(records: &[LandmarkRecord], sinks: &mut [&mut dyn Sink]) -> Result
     let faces = records.iter().filter(|r| r.success && r.landmarks.is_some()).count() as u64;
     let busy = feed(
         sinks,
-        records.iter().map(|r| TrackedFace {
-            index: r.frame,
-            timestamp: r.timestamp.max(0.0),
-            landmarks: r.landmarks.clone().filter(|_| r.success),
-            confidence: r.confidence,
-            rect: None,
-            gray: None,
+        records.iter().map(|r| Tracked {
+            face: TrackedFace {
+                index: r.frame,
+                timestamp: r.timestamp.max(0.0),
+                landmarks: r.landmarks.clone().filter(|_| r.success),
+                confidence: r.confidence,
+                rect: None,
+                gray: None,
+            },
+            wanted: 0,
         }),
     )?;
     Ok(RunReport {
