@@ -41,9 +41,11 @@ BOUND = 0.98
 
 
 def base_name(name):
+    """`eyeBlinkLeft`/`eyeBlink_L` -> `eyeBlink`; `mouthLeft`, `jawRight` are directions, kept."""
     for suf in ("Left", "Right", "_L", "_R"):
         if name.endswith(suf) and len(name) > len(suf):
-            return name[: -len(suf)]
+            base = name[: -len(suf)]
+            return name if base in ("mouth", "jaw") else base
     return name
 
 

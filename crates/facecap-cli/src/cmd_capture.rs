@@ -53,8 +53,8 @@ pub struct Args {
     /// Landmark map of `--rig` (JSON: `vertex_by_ibug_0based`, or a list of 68 ids).
     #[arg(long)]
     pub landmark_map: Option<PathBuf>,
-    /// Expression solver.
-    #[arg(long, default_value = "exact", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
+    /// Expression solver (`exact3d`: joint head pose and weights, perspective camera).
+    #[arg(long, default_value = "exact3d", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
     pub solver: String,
     /// Muscle set JSON, or `default` for the built-in 11-muscle set.
     #[arg(long)]
@@ -91,11 +91,16 @@ pub struct Args {
     /// Videos processed at once (default: number of cores).
     #[arg(long)]
     pub jobs: Option<usize>,
-    /// Per-subject neutral calibration: `none`, `auto` (the frame whose face shape is
-    /// closest to the clip's median face shape is taken as the subject's neutral) or
+    /// Per-subject neutral calibration: `auto` (default: the subject's neutral face fitted
+    /// in 3D over many resting frames; with a 2D solver, the frame closest to the clip's
+    /// median face shape), `none`, or
     /// a frame index where the subject's face is at rest. See docs/capture.md.
-    #[arg(long, default_value = "none")]
+    #[arg(long, default_value = "auto")]
     pub neutral: String,
+    /// Solve without the rig's measured default priors (unseen shapes held at 0, ridge by
+    /// observability, exclusive antagonists; see docs/expressions.md). For comparisons.
+    #[arg(long)]
+    pub no_priors: bool,
     /// ffmpeg decoder threads per video (0 = ffmpeg's choice). One thread per video
     /// costs the least CPU per frame; decoding runs beside tracking either way.
     #[arg(long, default_value_t = 1)]
@@ -122,8 +127,22 @@ struct Setup {
     args_echo: serde_json::Value,
 }
 
-/// The neutral calibration of `crate::neutral` behind the pipeline's hook.
-struct NeutralHook(crate::neutral::NeutralChoice);
+/// The neutral calibration of `crate::neutral` behind the pipeline's hook: `auto` with
+/// `exact3d` fits the subject's neutral in 3D over resting frames, everything else
+/// calibrates on one frame.
+pub(crate) struct NeutralHook {
+    pub(crate) choice: crate::neutral::NeutralChoice,
+    pub(crate) method: Method,
+    pub(crate) objective: ObjectiveParams,
+    pub(crate) priors: Option<facecap_solve::ShapePriors>,
+}
+
+impl NeutralHook {
+    /// Whether a calibration was asked for.
+    pub(crate) fn active(&self) -> bool {
+        self.choice != crate::neutral::NeutralChoice::None
+    }
+}
 
 impl NeutralCalibration for NeutralHook {
     fn calibrate(
@@ -133,12 +152,28 @@ impl NeutralCalibration for NeutralHook {
         camera: Intrinsics,
         frames: &[(u64, Landmarks68)],
     ) -> Result<Calibrated, facecap_pipeline::error::BoxError> {
-        let c = crate::neutral::calibrate(self.0, solver, rig, camera, frames)?;
+        let c = match (self.choice, self.method) {
+            (crate::neutral::NeutralChoice::Auto, Method::Exact3d) => crate::neutral::calibrate_subject(
+                rig,
+                camera,
+                self.objective,
+                self.priors
+                    .as_ref()
+                    .unwrap_or(&facecap_solve::ShapePriors::neutral(rig.num_shapes())),
+                frames,
+            )?,
+            _ => crate::neutral::calibrate(self.choice, solver, rig, camera, frames)?,
+        };
         Ok(Calibrated {
             rig: c.rig,
             report: c.report,
         })
     }
+}
+
+/// The rig's measured default priors (`None` with `--no-priors`).
+pub(crate) fn rig_priors(rig: &BlendshapeRig, no_priors: bool) -> Option<facecap_solve::ShapePriors> {
+    (!no_priors).then(|| facecap_solve::observability::default_priors(rig))
 }
 
 /// Parses `fx,fy,cx,cy`.
@@ -230,16 +265,28 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "obj": obj_space.map(|s| match s { ObjSpace::Model => "model", ObjSpace::Camera => "camera" }),
         "still_head": args.still_head,
         "neutral": args.neutral,
+        "priors": !args.no_priors,
     });
+    let priors = rig_priors(&rig, args.no_priors);
     Ok(Setup {
         rig_mesh,
-        expression: ExpressionSetup { rig, method, objective },
+        expression: ExpressionSetup {
+            rig,
+            method,
+            objective,
+            priors: priors.clone(),
+        },
         rig_name,
         camera,
         tracker,
         muscles,
         tensor,
-        neutral: NeutralHook(neutral),
+        neutral: NeutralHook {
+            choice: neutral,
+            method,
+            objective,
+            priors,
+        },
         obj_space,
         args_echo,
     })
@@ -374,7 +421,7 @@ fn capture_one(
         .frame_count
         .map(|n| (n / args.sheet_frames.max(1) as u64).max(1))
         .unwrap_or(30);
-    let calibrate = setup.neutral.0 != crate::neutral::NeutralChoice::None;
+    let calibrate = setup.neutral.active();
     let mut landmarks = LandmarkCsvSink::create(out_dir.join("landmarks.csv"))?;
     let mut solve = ExpressionSink::create(
         out_dir,

@@ -5,13 +5,16 @@
 //! ```text
 //! facecap solve LANDMARKS.csv [--rig RIG.glb --landmark-map MAP.json] [--width W --height H]
 //!     [--camera fx,fy,cx,cy] [--method exact3d|exact|bobyqa|region|pca] [--l1 1] [--temporal 0]
-//!     [--shapes NAME,NAME,...] [--fps F] [--obj] [--obj-space camera|model] [--still-head] --out DIR
+//!     [--shapes NAME,NAME,...] [--neutral auto|none|FRAME] [--no-priors] [--fps F] [--obj]
+//!     [--obj-space camera|model] [--still-head] --out DIR
 //! ```
 //!
 //! Input: facecap's `landmarks.csv` (`frame,timestamp,success,confidence,x_0..x_67,y_0..y_67`,
 //! 0-based pixels) or an OpenFace 2.x FeatureExtraction CSV (columns found by name, spaces
 //! after commas allowed, extra columns ignored; OpenFace's 1-based frames become 0-based).
-//! Rows with `success = 0` get `nan` weights and reset the warm start.
+//! Rows with `success = 0` get `nan` weights and reset the warm start. The solver set-up
+//! (priors, neutral calibration) is `capture`'s, with the same defaults, so `solve` on
+//! `capture`'s `landmarks.csv` reproduces its `pose.csv` and `weights.csv`.
 //!
 //! Outputs in `DIR` (each written atomically; the same files as `capture`):
 //! `weights.csv`, `pose.csv`, `openface.csv`, `livelink.csv` (ARKit-named rigs),
@@ -64,6 +67,13 @@ pub struct Args {
     /// Temporal weight mu on ||e_t - e_{t-1}||^2 (px^2).
     #[arg(long, default_value_t = 0.0)]
     pub temporal: f64,
+    /// Per-subject neutral calibration, as `capture --neutral`: `auto` (default), `none`
+    /// or a frame index where the face is at rest.
+    #[arg(long, default_value = "auto")]
+    pub neutral: String,
+    /// Solve without the rig's measured default priors, as `capture --no-priors`.
+    #[arg(long)]
+    pub no_priors: bool,
     /// Frame rate for keyframe times and Live Link timecodes (default: from the CSV's timestamps).
     #[arg(long)]
     pub fps: Option<f64>,
@@ -94,6 +104,7 @@ fn fps_of(records: &[facecap_core::csv::LandmarkRecord]) -> Option<f64> {
 /// Runs `facecap solve`.
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let method: Method = args.method.parse()?;
+    let neutral: crate::neutral::NeutralChoice = args.neutral.parse()?;
     let camera = match (&args.camera, args.width, args.height) {
         (Some(c), _, _) => Some(crate::cmd_capture::parse_camera(c)?),
         (None, Some(w), Some(h)) => Some(Intrinsics::default_for_frame(w, h)?),
@@ -145,9 +156,28 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     };
     objective.validate()?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let setup = ExpressionSetup { rig, method, objective };
+    let priors = crate::cmd_capture::rig_priors(&rig, args.no_priors);
+    let hook = crate::cmd_capture::NeutralHook {
+        choice: neutral,
+        method,
+        objective,
+        priors: priors.clone(),
+    };
+    let setup = ExpressionSetup {
+        rig,
+        method,
+        objective,
+        priors,
+    };
     let t0 = std::time::Instant::now();
-    let mut sink = ExpressionSink::create(&args.out, &setup, camera, None, FrameImages::None)?;
+    let mut sink = ExpressionSink::create(
+        &args.out,
+        &setup,
+        camera,
+        hook.active()
+            .then_some(&hook as &dyn facecap_pipeline::NeutralCalibration),
+        FrameImages::None,
+    )?;
     facecap_pipeline::replay(&records, &mut [&mut sink])?;
     let solve_seconds = t0.elapsed().as_secs_f64();
     let result = sink.finish()?;

@@ -28,12 +28,14 @@ use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Solution, SolveS
 use nalgebra::Point3;
 use serde_json::json;
 
-/// Which frame is the subject's neutral.
+/// How the subject's neutral is found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum NeutralChoice {
     /// No calibration.
     None,
-    /// The frame with the least total expression under the generic rig.
+    /// The default: the subject's neutral fitted in 3D over many frames
+    /// ([`facecap_solve::calibrate`]) with the 3D solver; with a 2D solver, the frame closest
+    /// to the clip's median face shape.
     Auto,
     /// This frame index.
     Frame(u64),
@@ -141,6 +143,36 @@ pub fn calibrate(
             "generic_rig_weight_sum_on_that_frame": before,
             "mean_landmark_offset_px": mean_px,
         }),
+    })
+}
+
+/// The multi-frame 3D fit of the subject's neutral ([`facecap_solve::fit_subject`]) for
+/// the 3D solver: `rig` is the generic rig, `priors` and `objective` those the frames are
+/// solved with.
+pub fn calibrate_subject(
+    rig: &BlendshapeRig,
+    camera: Intrinsics,
+    objective: facecap_solve::ObjectiveParams,
+    priors: &facecap_solve::ShapePriors,
+    frames: &[(u64, Landmarks68)],
+) -> anyhow::Result<Calibrated> {
+    let lms: Vec<Landmarks68> = frames.iter().map(|(_, l)| l.clone()).collect();
+    let params = facecap_solve::SubjectParams::default();
+    let fit = facecap_solve::fit_subject(rig, camera, objective, priors, &lms, &params)
+        .map_err(|e| anyhow::anyhow!("fitting the subject's neutral: {e}"))?;
+    Ok(Calibrated {
+        report: json!({
+            "mode": "auto",
+            "method": "multi-frame 3D offset field (resting frames at zero expression)",
+            "frames_used": fit.frames_used,
+            "rest_frames": fit.rest_frames,
+            "iterations": params.iterations,
+            "mean_offset_rig_units": fit.mean_offset,
+            "mean_expression_before": fit.mean_expression_before,
+            "mean_expression_after": fit.mean_expression_after,
+            "offsets": fit.offsets.iter().map(|d| [d.x, d.y, d.z]).collect::<Vec<_>>(),
+        }),
+        rig: fit.rig,
     })
 }
 

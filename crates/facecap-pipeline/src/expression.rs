@@ -18,7 +18,9 @@ use facecap_core::camera::{pose_row, Intrinsics, ModelToCamera};
 use facecap_core::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 use facecap_core::pnp::{solve_pnp, PnpParams};
-use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, Solution, SolveState};
+use facecap_solve::{
+    AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
+};
 use image::GrayImage;
 use nalgebra::{Point2, Point3};
 
@@ -34,6 +36,8 @@ pub struct ExpressionSetup {
     pub method: Method,
     /// Objective weights (L1, temporal).
     pub objective: ObjectiveParams,
+    /// Per-shape priors of the 3D solver (`None`: none).
+    pub priors: Option<ShapePriors>,
 }
 
 /// A calibrated rig and what was done (for `summary.json`).
@@ -75,14 +79,20 @@ pub fn build_expression_solve(
     camera: Intrinsics,
     calibration: Option<CalibrationInput<'_>>,
 ) -> Result<(AnySolver, serde_json::Value)> {
-    let solver = AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?;
+    let with_priors = |s: AnySolver| -> Result<AnySolver> {
+        Ok(match &setup.priors {
+            Some(p) => s.with_priors(p.clone())?,
+            None => s,
+        })
+    };
+    let solver = with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?;
     let Some((cal, frames)) = calibration else {
         return Ok((solver, serde_json::Value::Null));
     };
     let c = cal
         .calibrate(&solver, &setup.rig, camera, frames)
         .map_err(Error::Calibration)?;
-    let calibrated = AnySolver::new(setup.method, &c.rig, camera, setup.objective)?;
+    let calibrated = with_priors(AnySolver::new(setup.method, &c.rig, camera, setup.objective)?)?;
     Ok((calibrated, c.report))
 }
 

@@ -92,6 +92,18 @@ const POSE: usize = 6;
 const MIN_DEPTH: f64 = 1e-6;
 /// Backtracking halvings of the QP step.
 const MAX_HALVINGS: usize = 30;
+/// A weight above this counts as active for the exclusive pairs.
+const EXCLUSIVE_EPS: f64 = 1e-3;
+
+/// `(IOD / 100 px)^2` of the observed landmarks (1 when the eye corners are unusable).
+fn prior_scale(input: &Landmarks68) -> f64 {
+    let d = (input.points[36] - input.points[45]).norm();
+    if d.is_finite() && d > 1.0 {
+        (d / 100.0).powi(2)
+    } else {
+        1.0
+    }
+}
 
 /// The 3D-aware solver (see module docs).
 #[derive(Debug, Clone)]
@@ -106,6 +118,78 @@ pub struct Exact3dSolver {
     deltas: Vec<Vector3<f64>>,
     params: Exact3dParams,
     ridge: f64,
+    /// Per-shape and per-landmark terms (all neutral by default).
+    priors: ShapePriors,
+    /// `sqrt` of the point weight of each mapped landmark (`idx` order).
+    sqrt_w: Vec<f64>,
+}
+
+/// Per-shape and per-landmark terms of the 3D objective beyond [`ObjectiveParams`]:
+///
+/// ```text
+/// F += s * sum_i ridge_i e_i^2,   s = (IOD / 100 px)^2
+/// ```
+///
+/// (`IOD` = the observed distance of the outer eye corners 36 and 45, so the prior means the
+/// same on small and large faces), `e_i = 0` for `fixed` shapes, each landmark's squared
+/// residual multiplied by `point_weights[l]`, and for each `exclusive` pair `(a, b)` at most
+/// one of the two is non-zero: when both are after a solve, the smaller one is held at 0 and
+/// the frame is solved again (up to [`MAX_EXCLUSIVE_ROUNDS`] rounds).
+///
+/// [`ShapePriors::neutral`] changes nothing; [`crate::observability::default_priors`] is the
+/// measured default for a rig.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShapePriors {
+    /// Quadratic prior per shape (px^2 at IOD = 100 px per unit weight^2), `>= 0`.
+    pub ridge: Vec<f64>,
+    /// Shapes held at 0.
+    pub fixed: Vec<bool>,
+    /// Shape pairs that must not both be active.
+    pub exclusive: Vec<(usize, usize)>,
+    /// Weight of each landmark's squared residual, `[0, 1e6]`.
+    pub point_weights: [f64; NUM_LANDMARKS],
+}
+
+/// Re-solves allowed by the exclusive pairs of [`ShapePriors`].
+pub const MAX_EXCLUSIVE_ROUNDS: usize = 3;
+
+impl ShapePriors {
+    /// No prior, nothing fixed, every landmark weight 1 (the plain objective).
+    pub fn neutral(n: usize) -> Self {
+        ShapePriors {
+            ridge: vec![0.0; n],
+            fixed: vec![false; n],
+            exclusive: Vec::new(),
+            point_weights: [1.0; NUM_LANDMARKS],
+        }
+    }
+
+    /// Checks sizes and ranges against `n` shapes.
+    pub fn validate(&self, n: usize) -> Result<()> {
+        if self.ridge.len() != n || self.fixed.len() != n {
+            return Err(Error::DimensionMismatch {
+                what: "shape priors (ridge, fixed)".into(),
+                expected: n,
+                got: self.ridge.len().min(self.fixed.len()),
+            });
+        }
+        for &r in &self.ridge {
+            check_range("ridge", r, 0.0, 1e12)?;
+        }
+        for &w in &self.point_weights {
+            check_range("point_weights", w, 0.0, 1e6)?;
+        }
+        for &(a, b) in &self.exclusive {
+            if a >= n || b >= n || a == b {
+                return Err(Error::invalid(
+                    "exclusive",
+                    format!("({a}, {b})"),
+                    format!("two different shape indices < {n}"),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Scratch of [`Exact3dSolver`].
@@ -126,6 +210,8 @@ pub struct Exact3dWorkspace {
     z: Vec<f64>,
     e: Vec<f64>,
     e_trial: Vec<f64>,
+    /// This frame's effective ridge per shape (`s * ridge_i`).
+    rho: Vec<f64>,
     qp: QpWorkspace,
 }
 
@@ -194,15 +280,34 @@ impl Exact3dSolver {
         {
             return Err(Error::rig("3D rig", "non-finite coordinate"));
         }
+        let sqrt_w = vec![1.0; idx.len()];
         Ok(Exact3dSolver {
             names: rig.names.clone(),
             n,
             idx,
             neutral,
             deltas,
+            sqrt_w,
             params,
             ridge: 1e-12 * maxnorm.max(1e-300),
+            priors: ShapePriors::neutral(n),
         })
+    }
+
+    /// The same solver with per-shape and per-landmark terms (see [`ShapePriors`]).
+    ///
+    /// # Errors
+    /// When the priors do not fit the rig or are out of range.
+    pub fn with_priors(mut self, priors: ShapePriors) -> Result<Self> {
+        priors.validate(self.n)?;
+        self.sqrt_w = self.idx.iter().map(|&l| priors.point_weights[l].sqrt()).collect();
+        self.priors = priors;
+        Ok(self)
+    }
+
+    /// The priors in use.
+    pub fn priors(&self) -> &ShapePriors {
+        &self.priors
     }
 
     /// The camera.
@@ -224,7 +329,16 @@ impl Exact3dSolver {
     }
 
     /// `F` at (pose, e); `+inf` if a point is behind the camera.
-    fn cost(&self, pose: &Pose, e: &[f64], ws_posed: &mut [Vector3<f64>], obs: &[f64], prev: Option<&[f64]>) -> f64 {
+    #[allow(clippy::too_many_arguments)]
+    fn cost(
+        &self,
+        pose: &Pose,
+        e: &[f64],
+        ws_posed: &mut [Vector3<f64>],
+        obs: &[f64],
+        rho: &[f64],
+        prev: Option<&[f64]>,
+    ) -> f64 {
         self.pose_points(e, ws_posed);
         let k = &self.params.camera;
         let mut f = 0.0;
@@ -235,10 +349,12 @@ impl Exact3dSolver {
             }
             let u = k.fx * c.x / c.z + k.cx - obs[2 * j];
             let v = k.fy * c.y / c.z + k.cy - obs[2 * j + 1];
-            f += u * u + v * v;
+            let w = self.sqrt_w[j] * self.sqrt_w[j];
+            f += w * (u * u + v * v);
         }
         let obj = &self.params.objective;
         f += obj.l1 * e.iter().sum::<f64>();
+        f += rho.iter().zip(e).map(|(r, x)| r * x * x).sum::<f64>();
         if let Some(p) = prev {
             f += obj.temporal * e.iter().zip(p).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
         }
@@ -259,11 +375,12 @@ impl Exact3dSolver {
                 return false;
             }
             let iz = 1.0 / c.z;
-            ws.r[2 * j] = k.fx * c.x * iz + k.cx - ws.obs[2 * j];
-            ws.r[2 * j + 1] = k.fy * c.y * iz + k.cy - ws.obs[2 * j + 1];
-            // d pi / d c
-            let ju = [k.fx * iz, 0.0, -k.fx * c.x * iz * iz];
-            let jv = [0.0, k.fy * iz, -k.fy * c.y * iz * iz];
+            let sw = self.sqrt_w[j];
+            ws.r[2 * j] = sw * (k.fx * c.x * iz + k.cx - ws.obs[2 * j]);
+            ws.r[2 * j + 1] = sw * (k.fy * c.y * iz + k.cy - ws.obs[2 * j + 1]);
+            // d pi / d c (rows scaled by the point weight)
+            let ju = [sw * k.fx * iz, 0.0, -sw * k.fx * c.x * iz * iz];
+            let jv = [0.0, sw * k.fy * iz, -sw * k.fy * c.y * iz * iz];
             // d c / d w = -[R x]_x
             let dw = [[0.0, rx.z, -rx.y], [-rx.z, 0.0, rx.x], [rx.y, -rx.x, 0.0]];
             let (ru, rv) = (2 * j * cols, (2 * j + 1) * cols);
@@ -354,7 +471,7 @@ impl Exact3dSolver {
                 };
                 let d = ch.solve(&(-jtr));
                 let trial = pose.step(d.as_slice(), 1.0);
-                let c = self.cost(&trial, &ws.e, &mut ws.posed, &ws.obs, prev);
+                let c = self.cost(&trial, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
                 if c < cost {
                     *pose = trial;
                     cost = c;
@@ -403,6 +520,7 @@ impl ExpressionSolver for Exact3dSolver {
             z: vec![0.0; cols],
             e: vec![0.0; n],
             e_trial: vec![0.0; n],
+            rho: vec![0.0; n],
             qp: QpWorkspace::new(cols),
         }
     }
@@ -423,16 +541,24 @@ impl ExpressionSolver for Exact3dSolver {
             ws.obs[2 * j + 1] = input.points[l].y;
         }
         ws.e.copy_from_slice(&state.weights);
+        let scale = prior_scale(input);
+        for kk in 0..n {
+            ws.rho[kk] = self.priors.ridge[kk] * scale;
+            ws.hi[POSE + kk] = if self.priors.fixed[kk] { 0.0 } else { 1.0 };
+            if self.priors.fixed[kk] {
+                ws.e[kk] = 0.0;
+            }
+        }
         let prev_buf = &state.weights;
         let prev = if mu > 0.0 { Some(prev_buf.as_slice()) } else { None };
         let mut pose = match (&state.pose, state.has_previous) {
             (Some(p), true) => Pose::from_model_to_camera(p),
             _ => self.initial_pose(ws)?,
         };
-        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, prev);
+        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
         if !cost.is_finite() {
             pose = self.initial_pose(ws)?;
-            cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, prev);
+            cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
             if !cost.is_finite() {
                 return Err(Error::Input {
                     reason: "no pose puts the face in front of the camera".into(),
@@ -444,80 +570,101 @@ impl ExpressionSolver for Exact3dSolver {
         let mut stop = StopReason::MaxIterations;
         let mut iterations = 0;
         let mut inner = 0;
-        for _ in 0..self.params.max_alternations {
-            iterations += 1;
-            let before = cost;
-            cost = self.rigid_update(&mut pose, cost, prev, ws);
-            if !self.linearise(&pose, ws) {
-                break;
-            }
-            // H = 2 A^T A (+ 2 mu on e), g = -2 A^T c - lambda + 2 mu e_prev, c = r - A_e e
-            let rows = ws.r.len();
-            for row in 0..rows {
-                let mut c = ws.r[row];
-                for kk in 0..n {
-                    c -= ws.a[row * cols + POSE + kk] * ws.e[kk];
-                }
-                ws.r[row] = c;
-            }
-            ws.h.fill(0.0);
-            ws.g.fill(0.0);
-            for row in 0..rows {
-                let ar = &ws.a[row * cols..(row + 1) * cols];
-                let c = ws.r[row];
-                for a in 0..cols {
-                    let va = ar[a];
-                    if va == 0.0 {
-                        continue;
-                    }
-                    ws.g[a] -= 2.0 * va * c;
-                    let hrow = &mut ws.h[a * cols..(a + 1) * cols];
-                    for b in a..cols {
-                        hrow[b] += 2.0 * va * ar[b];
+        for round in 0..=MAX_EXCLUSIVE_ROUNDS {
+            if round > 0 {
+                // an exclusive pair is active together: hold the smaller of each at 0
+                let mut changed = false;
+                for &(a, b) in &self.priors.exclusive {
+                    if ws.e[a] > EXCLUSIVE_EPS && ws.e[b] > EXCLUSIVE_EPS {
+                        let loser = if ws.e[a] < ws.e[b] { a } else { b };
+                        ws.hi[POSE + loser] = 0.0;
+                        ws.e[loser] = 0.0;
+                        changed = true;
                     }
                 }
-            }
-            for a in 0..cols {
-                for b in 0..a {
-                    ws.h[a * cols + b] = ws.h[b * cols + a];
-                }
-            }
-            for kk in 0..n {
-                let i = POSE + kk;
-                ws.h[i * cols + i] += 2.0 * mu + self.ridge;
-                ws.g[i] += -obj.l1 + 2.0 * mu * state.weights[kk];
-            }
-            for a in 0..POSE {
-                ws.h[a * cols + a] += self.ridge;
-            }
-            ws.z[..POSE].fill(0.0);
-            ws.z[POSE..].copy_from_slice(&ws.e);
-            if !self.params.joint {
-                ws.lo[..POSE].fill(0.0);
-                ws.hi[..POSE].fill(0.0);
-            }
-            let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.z, &opts, &mut ws.qp);
-            inner += o.iterations;
-            // backtracking on F along the QP step
-            let mut alpha = 1.0;
-            let mut accepted = false;
-            for _ in 0..MAX_HALVINGS {
-                let trial_pose = pose.step(&ws.z[..POSE], alpha);
-                for kk in 0..n {
-                    ws.e_trial[kk] = ws.e[kk] + alpha * (ws.z[POSE + kk] - ws.e[kk]);
-                }
-                let c = self.cost(&trial_pose, &ws.e_trial, &mut ws.posed, &ws.obs, prev);
-                if c < cost {
-                    pose = trial_pose;
-                    ws.e.copy_from_slice(&ws.e_trial);
-                    cost = c;
-                    accepted = true;
+                if !changed {
                     break;
                 }
-                alpha *= 0.5;
+                cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
             }
-            if !accepted || before - cost <= self.params.tol * before.abs().max(1e-300) {
-                stop = StopReason::SmallDecrease;
+            for _ in 0..self.params.max_alternations {
+                iterations += 1;
+                let before = cost;
+                cost = self.rigid_update(&mut pose, cost, prev, ws);
+                if !self.linearise(&pose, ws) {
+                    break;
+                }
+                // H = 2 A^T A (+ 2 mu on e), g = -2 A^T c - lambda + 2 mu e_prev, c = r - A_e e
+                let rows = ws.r.len();
+                for row in 0..rows {
+                    let mut c = ws.r[row];
+                    for kk in 0..n {
+                        c -= ws.a[row * cols + POSE + kk] * ws.e[kk];
+                    }
+                    ws.r[row] = c;
+                }
+                ws.h.fill(0.0);
+                ws.g.fill(0.0);
+                for row in 0..rows {
+                    let ar = &ws.a[row * cols..(row + 1) * cols];
+                    let c = ws.r[row];
+                    for a in 0..cols {
+                        let va = ar[a];
+                        if va == 0.0 {
+                            continue;
+                        }
+                        ws.g[a] -= 2.0 * va * c;
+                        let hrow = &mut ws.h[a * cols..(a + 1) * cols];
+                        for b in a..cols {
+                            hrow[b] += 2.0 * va * ar[b];
+                        }
+                    }
+                }
+                for a in 0..cols {
+                    for b in 0..a {
+                        ws.h[a * cols + b] = ws.h[b * cols + a];
+                    }
+                }
+                for kk in 0..n {
+                    let i = POSE + kk;
+                    ws.h[i * cols + i] += 2.0 * mu + 2.0 * ws.rho[kk] + self.ridge;
+                    ws.g[i] += -obj.l1 + 2.0 * mu * state.weights[kk];
+                }
+                for a in 0..POSE {
+                    ws.h[a * cols + a] += self.ridge;
+                }
+                ws.z[..POSE].fill(0.0);
+                ws.z[POSE..].copy_from_slice(&ws.e);
+                if !self.params.joint {
+                    ws.lo[..POSE].fill(0.0);
+                    ws.hi[..POSE].fill(0.0);
+                }
+                let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.z, &opts, &mut ws.qp);
+                inner += o.iterations;
+                // backtracking on F along the QP step
+                let mut alpha = 1.0;
+                let mut accepted = false;
+                for _ in 0..MAX_HALVINGS {
+                    let trial_pose = pose.step(&ws.z[..POSE], alpha);
+                    for kk in 0..n {
+                        ws.e_trial[kk] = ws.e[kk] + alpha * (ws.z[POSE + kk] - ws.e[kk]);
+                    }
+                    let c = self.cost(&trial_pose, &ws.e_trial, &mut ws.posed, &ws.obs, &ws.rho, prev);
+                    if c < cost {
+                        pose = trial_pose;
+                        ws.e.copy_from_slice(&ws.e_trial);
+                        cost = c;
+                        accepted = true;
+                        break;
+                    }
+                    alpha *= 0.5;
+                }
+                if !accepted || before - cost <= self.params.tol * before.abs().max(1e-300) {
+                    stop = StopReason::SmallDecrease;
+                    break;
+                }
+            }
+            if self.priors.exclusive.is_empty() {
                 break;
             }
         }
@@ -567,7 +714,9 @@ impl Exact3dSolver {
             obs[2 * j] = input.points[l].x;
             obs[2 * j + 1] = input.points[l].y;
         }
-        Ok(self.cost(&Pose::from_model_to_camera(pose), weights, &mut posed, &obs, prev))
+        let scale = prior_scale(input);
+        let rho: Vec<f64> = self.priors.ridge.iter().map(|r| r * scale).collect();
+        Ok(self.cost(&Pose::from_model_to_camera(pose), weights, &mut posed, &obs, &rho, prev))
     }
 
     /// The best pose for fixed weights (affine start + rigid LM to convergence) and its
@@ -587,7 +736,11 @@ impl Exact3dSolver {
             ws.obs[2 * j + 1] = input.points[l].y;
         }
         let mut pose = self.initial_pose(&mut ws)?;
-        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, None);
+        let scale = prior_scale(input);
+        for (r, p) in ws.rho.iter_mut().zip(&self.priors.ridge) {
+            *r = p * scale;
+        }
+        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, None);
         let mut s = self.clone();
         s.params.pose_iterations = 50;
         for _ in 0..4 {

@@ -40,9 +40,11 @@
 pub mod basis;
 pub mod bobyqa;
 pub mod bobyqa_solver;
+pub mod calibrate;
 pub mod error;
 pub mod exact;
 pub mod exact3d;
+pub mod observability;
 pub mod pca;
 pub mod qp;
 pub mod region;
@@ -52,9 +54,10 @@ pub mod synth;
 
 pub use basis::{Basis2d, Shape2dExample, Shapes2d, Similarity2d};
 pub use bobyqa_solver::{BobyqaParams, BobyqaSolver};
+pub use calibrate::{fit_subject, SubjectFit, SubjectParams};
 pub use error::{Error, Result};
 pub use exact::{ExactParams, ExactSolver};
-pub use exact3d::{Exact3dParams, Exact3dSolver};
+pub use exact3d::{Exact3dParams, Exact3dSolver, ShapePriors};
 pub use pca::{PcaParams, PcaSolver};
 pub use region::{RegionGroup, RegionParams, RegionSolver};
 pub use rig::BlendshapeRig;
@@ -185,6 +188,20 @@ impl AnySolver {
                     ..Default::default()
                 },
             )?),
+        })
+    }
+}
+
+impl AnySolver {
+    /// Applies per-shape priors (see [`ShapePriors`]) to the 3D method; the 2D methods
+    /// have no such terms and are returned unchanged.
+    ///
+    /// # Errors
+    /// When the priors do not fit the rig.
+    pub fn with_priors(self, priors: ShapePriors) -> Result<Self> {
+        Ok(match self {
+            AnySolver::Exact3d(s) => AnySolver::Exact3d(s.with_priors(priors)?),
+            other => other,
         })
     }
 }

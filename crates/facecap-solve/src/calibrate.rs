@@ -1,0 +1,395 @@
+//! The subject's own neutral face, fitted in 3D over many frames.
+//!
+//! A generic rig's neutral is not the subject's face: without calibration the solver reports
+//! the difference (a wider mouth, higher brows, a longer nose) as expression on every frame.
+//! [`fit_subject`] estimates a per-landmark 3D offset field `delta` (model frame, rig units)
+//! so that the rig's neutral `n_j + delta_j` is the subject's resting face:
+//!
+//! 1. solve a subsample of the frames (at most [`SubjectParams::max_frames`], evenly spaced)
+//!    with the current neutral, giving each frame a head pose and weights;
+//! 2. take the *resting* frames: after the first pass, the `rest_fraction` of frames with the
+//!    least total expression `sum_i e_i` (expressions come and go; rest is what most frames
+//!    share);
+//! 3. update the offsets so those frames, **at zero expression** and their solved poses, land
+//!    on the tracked landmarks: per landmark the linearised least squares
+//!
+//!    ```text
+//!    min_d  mean_f || J_fj d + r_fj ||^2 / s_f  +  alpha_xy (d_x^2 + d_y^2) + alpha_z d_z^2
+//!    ```
+//!
+//!    with `r_fj` the reprojection residual of `n_j + delta_j` at frame `f`'s pose, `J_fj`
+//!    its Jacobian with respect to a model-frame offset, `s_f = (IOD_f / 100 px)^2` (so the
+//!    terms are in percent of the inter-ocular distance, whatever the face size), and the
+//!    depth damped harder than the image-plane directions (depth is seen only through head
+//!    rotation);
+//! 4. repeat from 1 (`iterations` times).
+//!
+//! Holding the resting frames at zero expression is what separates identity from
+//! expression: fitting offsets and weights jointly on every frame lets whichever explains a
+//! landmark first keep it (measured: a generic-rig `browDown = 1` on a resting face stays 1).
+//! The fit is the multi-frame analogue of eos's and the Papanek thesis' identity fitting, on
+//! a free offset field with a ridge prior, so it works for any rig.
+
+use facecap_core::camera::Intrinsics;
+use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use nalgebra::{Matrix2x3, Matrix3, Point3, Vector2, Vector3};
+
+use crate::error::{check_count, check_range, Error, Result};
+use crate::exact3d::{Exact3dParams, Exact3dSolver, ShapePriors};
+use crate::rig::BlendshapeRig;
+use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
+
+/// Parameters of [`fit_subject`].
+///
+/// | name | default | meaning | range |
+/// |---|---|---|---|
+/// | `max_frames` | 150 | frames used per pass (evenly spaced over the clip) | 1-100000 |
+/// | `iterations` | 3 | solve / refit passes | 1-20 |
+/// | `rest_fraction` | 0.4 | share of the frames taken as resting after the first pass | (0, 1] |
+/// | `alpha_xy` | 5.0 | ridge on the image-plane offset (% IOD)^2 per unit^2 | `[0, 1e9]` |
+/// | `alpha_z` | 500.0 | ridge on the depth offset | `[0, 1e9]` |
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SubjectParams {
+    /// Frames per pass.
+    pub max_frames: usize,
+    /// Passes.
+    pub iterations: usize,
+    /// Resting share.
+    pub rest_fraction: f64,
+    /// Image-plane ridge.
+    pub alpha_xy: f64,
+    /// Depth ridge.
+    pub alpha_z: f64,
+}
+
+impl Default for SubjectParams {
+    fn default() -> Self {
+        SubjectParams {
+            max_frames: 150,
+            iterations: 3,
+            rest_fraction: 0.4,
+            alpha_xy: 5.0,
+            alpha_z: 500.0,
+        }
+    }
+}
+
+impl SubjectParams {
+    /// Checks the table's ranges.
+    pub fn validate(&self) -> Result<()> {
+        check_count("max_frames", self.max_frames, 1, 100_000)?;
+        check_count("iterations", self.iterations, 1, 20)?;
+        check_range("rest_fraction", self.rest_fraction, 1e-6, 1.0)?;
+        check_range("alpha_xy", self.alpha_xy, 0.0, 1e9)?;
+        check_range("alpha_z", self.alpha_z, 0.0, 1e9)?;
+        Ok(())
+    }
+}
+
+/// The fitted subject.
+#[derive(Debug, Clone)]
+pub struct SubjectFit {
+    /// The rig with the subject's neutral landmarks (`neutral + offsets`); deltas unchanged.
+    pub rig: BlendshapeRig,
+    /// Per-landmark offsets (model frame, rig units; zero where unmapped).
+    pub offsets: [Vector3<f64>; NUM_LANDMARKS],
+    /// Frames solved per pass.
+    pub frames_used: usize,
+    /// Resting frames of the last pass (the ones the offsets were fitted on).
+    pub rest_frames: usize,
+    /// Mean offset length (rig units).
+    pub mean_offset: f64,
+    /// Mean total expression `sum_i e_i` of the solved frames before and after calibration.
+    pub mean_expression_before: f64,
+    /// See `mean_expression_before`.
+    pub mean_expression_after: f64,
+}
+
+/// Solves `frames` in order with `solver` (warm-started), returning poses and weights.
+fn solve_all(
+    solver: &Exact3dSolver,
+    frames: &[&Landmarks68],
+) -> Vec<Option<(facecap_core::camera::ModelToCamera, Vec<f64>)>> {
+    let n = solver.num_shapes();
+    let mut ws = solver.workspace();
+    let mut state = SolveState::new(n);
+    let mut sol = Solution::new(n);
+    frames
+        .iter()
+        .map(|l| match solver.solve_into(l, &mut ws, &mut state, &mut sol) {
+            Ok(_) => sol.pose.map(|p| (p, sol.weights.clone())),
+            Err(_) => {
+                state.reset();
+                None
+            }
+        })
+        .collect()
+}
+
+/// Fits the subject's neutral (module docs). `objective` and `priors` are those the frames
+/// will be solved with afterwards.
+///
+/// # Errors
+/// Invalid parameters, or no frame could be solved.
+pub fn fit_subject(
+    rig: &BlendshapeRig,
+    camera: Intrinsics,
+    objective: ObjectiveParams,
+    priors: &ShapePriors,
+    frames: &[Landmarks68],
+    params: &SubjectParams,
+) -> Result<SubjectFit> {
+    params.validate()?;
+    if frames.is_empty() {
+        return Err(Error::Input {
+            reason: "no tracked frame to fit the subject's neutral on".into(),
+        });
+    }
+    let step = frames.len().div_ceil(params.max_frames).max(1);
+    let sample: Vec<&Landmarks68> = frames.iter().step_by(step).collect();
+    let mut offsets = [Vector3::<f64>::zeros(); NUM_LANDMARKS];
+    let mut current = rig.clone();
+    let build = |r: &BlendshapeRig| -> Result<Exact3dSolver> {
+        Exact3dSolver::new(
+            r,
+            Exact3dParams {
+                objective: ObjectiveParams {
+                    temporal: 0.0,
+                    ..objective
+                },
+                ..Exact3dParams::new(camera)
+            },
+        )?
+        .with_priors(priors.clone())
+    };
+    let mut before = f64::NAN;
+    let mut rest_frames = 0;
+    for pass in 0..params.iterations {
+        let solver = build(&current)?;
+        let solved = solve_all(&solver, &sample);
+        let energy: Vec<f64> = solved
+            .iter()
+            .map(|s| s.as_ref().map_or(f64::INFINITY, |(_, w)| w.iter().sum()))
+            .collect();
+        let finite: Vec<f64> = energy.iter().copied().filter(|e| e.is_finite()).collect();
+        if finite.is_empty() {
+            return Err(Error::Input {
+                reason: "no frame could be solved for the subject's neutral".into(),
+            });
+        }
+        if pass == 0 {
+            before = finite.iter().sum::<f64>() / finite.len() as f64;
+        }
+        let threshold = if pass == 0 {
+            f64::INFINITY
+        } else {
+            let mut sorted = finite.clone();
+            sorted.sort_by(f64::total_cmp);
+            let k = ((sorted.len() as f64 * params.rest_fraction).ceil() as usize).clamp(1, sorted.len());
+            sorted[k - 1]
+        };
+        let mut a = [Matrix3::<f64>::zeros(); NUM_LANDMARKS];
+        let mut b = [Vector3::<f64>::zeros(); NUM_LANDMARKS];
+        let mut used = 0usize;
+        for ((obs, s), &en) in sample.iter().zip(&solved).zip(&energy) {
+            let Some((pose, _)) = s else { continue };
+            if en > threshold {
+                continue;
+            }
+            let iod = (obs.points[36] - obs.points[45]).norm();
+            if !(iod.is_finite() && iod > 1.0) {
+                continue;
+            }
+            let inv_s = (100.0 / iod).powi(2);
+            let rot = pose.0.rotation.to_rotation_matrix();
+            let rm = rot.matrix();
+            let mut ok = true;
+            let mut fa = [Matrix3::<f64>::zeros(); NUM_LANDMARKS];
+            let mut fb = [Vector3::<f64>::zeros(); NUM_LANDMARKS];
+            for l in 0..NUM_LANDMARKS {
+                if !current.mapped[l] {
+                    continue;
+                }
+                let x = Point3::new(
+                    current.neutral[[l, 0]],
+                    current.neutral[[l, 1]],
+                    current.neutral[[l, 2]],
+                );
+                let c = pose.0 * x;
+                if c.z <= 1e-9 {
+                    ok = false;
+                    break;
+                }
+                let iz = 1.0 / c.z;
+                let u = camera.fx * c.x * iz + camera.cx;
+                let v = camera.fy * c.y * iz + camera.cy;
+                let r = Vector2::new(u - obs.points[l].x, v - obs.points[l].y);
+                let jc = Matrix2x3::new(
+                    camera.fx * iz,
+                    0.0,
+                    -camera.fx * c.x * iz * iz,
+                    0.0,
+                    camera.fy * iz,
+                    -camera.fy * c.y * iz * iz,
+                );
+                let j = jc * rm;
+                fa[l] = j.transpose() * j * inv_s;
+                fb[l] = -(j.transpose() * r) * inv_s;
+            }
+            if !ok {
+                continue;
+            }
+            for l in 0..NUM_LANDMARKS {
+                a[l] += fa[l];
+                b[l] += fb[l];
+            }
+            used += 1;
+        }
+        if used == 0 {
+            return Err(Error::Input {
+                reason: "no resting frame to fit the subject's neutral on".into(),
+            });
+        }
+        rest_frames = used;
+        let damp = Matrix3::from_diagonal(&Vector3::new(params.alpha_xy, params.alpha_xy, params.alpha_z));
+        for l in 0..NUM_LANDMARKS {
+            if !current.mapped[l] {
+                continue;
+            }
+            let lhs = a[l] / used as f64 + damp;
+            let Some(ch) = lhs.cholesky() else { continue };
+            let d = ch.solve(&(b[l] / used as f64));
+            if d.iter().all(|v| v.is_finite()) {
+                offsets[l] += d;
+                for c in 0..3 {
+                    current.neutral[[l, c]] += d[c];
+                }
+            }
+        }
+    }
+    // the expression left on the same frames after calibration
+    let solver = build(&current)?;
+    let after: Vec<f64> = solve_all(&solver, &sample)
+        .iter()
+        .filter_map(|s| s.as_ref().map(|(_, w)| w.iter().sum::<f64>()))
+        .collect();
+    let mapped = (0..NUM_LANDMARKS).filter(|&l| rig.mapped[l]).count().max(1);
+    Ok(SubjectFit {
+        mean_offset: offsets.iter().map(|d| d.norm()).sum::<f64>() / mapped as f64,
+        rig: current,
+        offsets,
+        frames_used: sample.len(),
+        rest_frames,
+        mean_expression_before: before,
+        mean_expression_after: if after.is_empty() {
+            f64::NAN
+        } else {
+            after.iter().sum::<f64>() / after.len() as f64
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use facecap_core::camera::ModelToCamera;
+    use nalgebra::UnitQuaternion;
+
+    /// A subject whose face differs from the rig's neutral, seen over frames that are at rest
+    /// most of the time: the fitted neutral removes the identity, and the expression frames'
+    /// weights come back.
+    #[test]
+    fn multi_frame_fit_separates_identity_from_expression() {
+        let rig = BlendshapeRig::synthetic(6, 11);
+        let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
+        let mut subject = rig.clone();
+        for l in 0..NUM_LANDMARKS {
+            subject.neutral[[l, 0]] += 0.25 * (l as f64 * 0.7).sin();
+            subject.neutral[[l, 1]] += 0.2 * (l as f64 * 1.3).cos();
+        }
+        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+        let truth: Vec<Vec<f64>> = (0..60)
+            .map(|f| {
+                let mut w = vec![0.0; 6];
+                if f % 3 == 0 {
+                    w[(f / 3) % 6] = 0.7;
+                }
+                w
+            })
+            .collect();
+        let frames: Vec<Landmarks68> = truth
+            .iter()
+            .enumerate()
+            .map(|(f, w)| {
+                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(
+                    0.1 * (f as f64 * 0.3).sin(),
+                    0.3 * (f as f64 * 0.2).sin(),
+                    0.05,
+                ));
+                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(1.0, -2.0, 50.0));
+                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
+                    .map(|l| {
+                        let p = pose.project(&camera, &subject.landmark(l, w)).unwrap();
+                        (p.x, p.y)
+                    })
+                    .collect();
+                Landmarks68::from_slice(&pts).unwrap()
+            })
+            .collect();
+        let objective = ObjectiveParams::default();
+        let priors = ShapePriors::neutral(6);
+        let rmse = |r: &BlendshapeRig| {
+            let s = Exact3dSolver::new(r, Exact3dParams::new(camera)).unwrap();
+            let refs: Vec<&Landmarks68> = frames.iter().collect();
+            let out = solve_all(&s, &refs);
+            let mut se = 0.0;
+            for (o, w) in out.iter().zip(&truth) {
+                let (_, e) = o.as_ref().unwrap();
+                se += e.iter().zip(w).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
+            }
+            (se / (6 * frames.len()) as f64).sqrt()
+        };
+        let generic = rmse(&rig);
+        let fit = fit_subject(&rig, camera, objective, &priors, &frames, &SubjectParams::default()).unwrap();
+        let calibrated = rmse(&fit.rig);
+        assert!(fit.frames_used == 60 && fit.rest_frames >= 20, "{fit:?}");
+        assert!(calibrated < 0.05, "calibrated RMSE {calibrated}, generic {generic}");
+        assert!(
+            calibrated < 0.5 * generic,
+            "calibrated RMSE {calibrated}, generic {generic}"
+        );
+        // the identity itself is recovered in the image plane
+        let err: f64 = (0..NUM_LANDMARKS)
+            .map(|l| {
+                let tx = 0.25 * (l as f64 * 0.7).sin();
+                let ty = 0.2 * (l as f64 * 1.3).cos();
+                (fit.offsets[l].x - tx).hypot(fit.offsets[l].y - ty)
+            })
+            .sum::<f64>()
+            / NUM_LANDMARKS as f64;
+        assert!(err < 0.03, "mean image-plane offset error {err} (offsets ~0.2)");
+    }
+
+    #[test]
+    fn empty_input_and_bad_parameters_are_errors() {
+        let rig = BlendshapeRig::synthetic(3, 1);
+        let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
+        let p = ShapePriors::neutral(3);
+        assert!(fit_subject(
+            &rig,
+            camera,
+            ObjectiveParams::default(),
+            &p,
+            &[],
+            &SubjectParams::default()
+        )
+        .is_err());
+        let bad = SubjectParams {
+            rest_fraction: 0.0,
+            ..SubjectParams::default()
+        };
+        let one = [Landmarks68::default()];
+        assert!(fit_subject(&rig, camera, ObjectiveParams::default(), &p, &one, &bad).is_err());
+    }
+}

@@ -1,0 +1,257 @@
+//! What the 68 landmarks can see of a rig's shapes, and the default priors that follow.
+//!
+//! For every shape the landmark displacement field `d_i` (68 x 3, model units) is measured in
+//! the frontal image plane (x, y; depth is seen only through head rotation):
+//!
+//! * `motion`: `||d_i||` over the 68 points, in inter-ocular distances (IOD, the rig's own
+//!   outer eye corner distance 36-45), so rigs in cm and mm compare;
+//! * `independence`: `||d_i - P d_i|| / ||d_i||`, where `P` projects on the span of all other
+//!   shapes' fields: 0 means another combination of shapes moves the landmarks the same way
+//!   (the landmarks cannot tell them apart), 1 means no other shape does anything like it;
+//! * `closest`: the other shape with the largest `|cos|` between the fields.
+//!
+//! [`default_priors`] turns this into the solver's [`ShapePriors`]: shapes the landmarks
+//! cannot see are held at 0 (gaze `eyeLook*`: the eyelid points move with the eyeball in
+//! rigs, but the 68 points carry no iris, so eyelid motion is blink or squint, never gaze;
+//! `cheekPuff`, `jawForward` and `tongueOut` move mostly along the viewing direction or
+//! inside the mouth), every free shape gets a ridge that grows as its independence falls,
+//! and ARKit's antagonist pairs (`eyeWide` vs `eyeBlink`/`eyeSquint`, `browDown` vs
+//! `browInnerUp`/`browOuterUp`, `mouthSmile` vs `mouthFrown`, `mouthPucker` vs
+//! `mouthStretch`/`mouthSmile`, `mouthFunnel` vs `mouthStretch`, `mouthLeft` vs
+//! `mouthRight`, `jawLeft` vs `jawRight`) are exclusive. `docs/expressions.md` has the table
+//! for the built-in rig and the ICT rig.
+
+use facecap_core::landmarks::NUM_LANDMARKS;
+use nalgebra::{DMatrix, DVector};
+
+use crate::exact3d::ShapePriors;
+use crate::rig::BlendshapeRig;
+
+/// How well the 68 landmarks see one shape (module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShapeVisibility {
+    /// Shape name.
+    pub name: String,
+    /// Frontal landmark motion `||d_i||` in IODs of the rig.
+    pub motion: f64,
+    /// Largest single-landmark frontal motion in IODs.
+    pub max_point: f64,
+    /// Fraction of the motion no other shape can produce, `[0, 1]`.
+    pub independence: f64,
+    /// The most collinear other shape and the cosine with it.
+    pub closest: Option<(String, f64)>,
+    /// Why the default priors hold this shape at 0 (`None`: it is solved).
+    pub fixed_because: Option<&'static str>,
+}
+
+/// Shape-name prefixes held at 0 with 68 landmarks, and why.
+const UNSEEN: [(&str, &str); 4] = [
+    (
+        "eyeLook",
+        "gaze: 68 points carry no iris; set from a gaze signal instead",
+    ),
+    (
+        "cheekPuff",
+        "moves along the viewing direction; the jaw contour is a silhouette",
+    ),
+    ("jawForward", "moves along the viewing direction"),
+    ("tongue", "inside the mouth; no landmark"),
+];
+
+/// Ridge (px^2 at IOD 100 px) of a shape with independence 1; see [`default_priors`].
+pub const BASE_RIDGE: f64 = 2.0;
+
+/// Exclusive pairs by ARKit base name (sided names are paired side by side).
+const EXCLUSIVE: [(&str, &str); 11] = [
+    ("eyeWide", "eyeBlink"),
+    ("eyeWide", "eyeSquint"),
+    ("browDown", "browInnerUp"),
+    ("browDown", "browOuterUp"),
+    ("mouthSmile", "mouthFrown"),
+    ("mouthPucker", "mouthStretch"),
+    ("mouthPucker", "mouthSmile"),
+    ("mouthFunnel", "mouthStretch"),
+    ("mouthLeft", "mouthRight"),
+    ("jawLeft", "jawRight"),
+    ("mouthPress", "mouthFunnel"),
+];
+
+/// `(base, side)` of an ARKit-style name: `eyeBlinkLeft` / `eyeBlink_L` -> (`eyeBlink`, 'L');
+/// `mouthLeft`, `jawRight` are directions, not sides.
+pub fn split_side(name: &str) -> (&str, Option<char>) {
+    for (suffix, side) in [("Left", 'L'), ("Right", 'R'), ("_L", 'L'), ("_R", 'R')] {
+        if let Some(base) = name.strip_suffix(suffix) {
+            if !base.is_empty() && base != "mouth" && base != "jaw" {
+                return (base, Some(side));
+            }
+        }
+    }
+    (name, None)
+}
+
+fn rig_iod(rig: &BlendshapeRig) -> f64 {
+    let d: f64 = (0..3)
+        .map(|c| (rig.neutral[[36, c]] - rig.neutral[[45, c]]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    if d.is_finite() && d > 0.0 && rig.mapped[36] && rig.mapped[45] {
+        d
+    } else {
+        // no eye corners: the neutral's x extent stands in
+        let xs = (0..NUM_LANDMARKS)
+            .filter(|&l| rig.mapped[l])
+            .map(|l| rig.neutral[[l, 0]]);
+        let (lo, hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+        ((hi - lo) * 0.5).max(1e-9)
+    }
+}
+
+/// The visibility table of `rig` (module docs), in rig order.
+pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
+    let n = rig.num_shapes();
+    let iod = rig_iod(rig);
+    let rows = 2 * NUM_LANDMARKS;
+    let mut fields = DMatrix::<f64>::zeros(rows, n);
+    for k in 0..n {
+        for l in 0..NUM_LANDMARKS {
+            if rig.mapped[l] {
+                fields[(2 * l, k)] = rig.deltas[[k, l, 0]] / iod;
+                fields[(2 * l + 1, k)] = rig.deltas[[k, l, 1]] / iod;
+            }
+        }
+    }
+    let norms: Vec<f64> = (0..n).map(|k| fields.column(k).norm()).collect();
+    (0..n)
+        .map(|k| {
+            let name = rig.names[k].clone();
+            let motion = norms[k];
+            let max_point = (0..NUM_LANDMARKS)
+                .map(|l| fields[(2 * l, k)].hypot(fields[(2 * l + 1, k)]))
+                .fold(0.0, f64::max);
+            let others: Vec<usize> = (0..n).filter(|&j| j != k && norms[j] > 0.0).collect();
+            let independence = if motion <= 0.0 {
+                0.0
+            } else if others.is_empty() {
+                1.0
+            } else {
+                let a = DMatrix::from_fn(rows, others.len(), |r, c| fields[(r, others[c])]);
+                let b = DVector::from_column_slice(fields.column(k).as_slice());
+                // min ||A x - b|| through the SVD (rank-deficient sets are common)
+                let svd = a.clone().svd(true, true);
+                match svd.solve(&b, 1e-10) {
+                    Ok(x) => ((&a * x - &b).norm() / motion).clamp(0.0, 1.0),
+                    Err(_) => 1.0,
+                }
+            };
+            let closest = others
+                .iter()
+                .map(|&j| (j, fields.column(k).dot(&fields.column(j)) / (motion * norms[j])))
+                .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
+                .map(|(j, c)| (rig.names[j].clone(), c));
+            let fixed_because = UNSEEN
+                .iter()
+                .find(|(p, _)| name.starts_with(p))
+                .map(|(_, why)| *why)
+                .or(if motion < 1e-3 {
+                    Some("does not move the landmarks")
+                } else {
+                    None
+                });
+            ShapeVisibility {
+                name,
+                motion,
+                max_point,
+                independence,
+                closest,
+                fixed_because,
+            }
+        })
+        .collect()
+}
+
+/// The default priors of `rig` for 68-landmark input (module docs): unseen shapes fixed,
+/// ridge `BASE_RIDGE / max(independence, 0.1)^2` on the others, ARKit antagonists
+/// exclusive, every landmark weighted 1.
+pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
+    let table = analyse(rig);
+    let n = rig.num_shapes();
+    let mut p = ShapePriors::neutral(n);
+    for (k, v) in table.iter().enumerate() {
+        p.fixed[k] = v.fixed_because.is_some();
+        p.ridge[k] = BASE_RIDGE / v.independence.max(0.1).powi(2);
+    }
+    let index = |base: &str, side: Option<char>| {
+        rig.names.iter().position(|n| {
+            let (b, s) = split_side(n);
+            b == base && (s == side || s.is_none() || side.is_none())
+        })
+    };
+    for (a, b) in EXCLUSIVE {
+        for side in [Some('L'), Some('R'), None] {
+            if let (Some(i), Some(j)) = (index(a, side), index(b, side)) {
+                if i != j && !p.exclusive.contains(&(i, j)) {
+                    p.exclusive.push((i, j));
+                }
+            }
+        }
+    }
+    p
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn sides_are_split_but_directions_are_not() {
+        assert_eq!(split_side("eyeBlinkLeft"), ("eyeBlink", Some('L')));
+        assert_eq!(split_side("eyeBlink_R"), ("eyeBlink", Some('R')));
+        assert_eq!(split_side("mouthLeft"), ("mouthLeft", None));
+        assert_eq!(split_side("jawRight"), ("jawRight", None));
+        assert_eq!(split_side("jawOpen"), ("jawOpen", None));
+    }
+
+    #[test]
+    fn a_duplicated_shape_has_no_independence_and_a_unique_one_has_full() {
+        let mut rig = BlendshapeRig::synthetic(3, 1);
+        // shape 1 := shape 0 (indistinguishable); shape 2 moves one landmark no one else moves
+        for l in 0..NUM_LANDMARKS {
+            for c in 0..3 {
+                rig.deltas[[1, l, c]] = rig.deltas[[0, l, c]];
+                rig.deltas[[2, l, c]] = 0.0;
+            }
+        }
+        for k in 0..2 {
+            rig.deltas[[k, 5, 0]] = 0.0;
+            rig.deltas[[k, 5, 1]] = 0.0;
+        }
+        rig.deltas[[2, 5, 0]] = 0.5;
+        let t = analyse(&rig);
+        assert!(t[0].independence < 1e-6, "{:?}", t[0]);
+        assert!(t[1].independence < 1e-6, "{:?}", t[1]);
+        assert!((t[2].independence - 1.0).abs() < 1e-9, "{:?}", t[2]);
+        assert!((t[0].closest.as_ref().unwrap().1 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn arkit_priors_fix_gaze_and_pair_antagonists_per_side() {
+        let mut rig = BlendshapeRig::synthetic(6, 2);
+        rig.names = [
+            "eyeBlink_L",
+            "eyeWide_L",
+            "eyeBlink_R",
+            "eyeWide_R",
+            "eyeLookDown_L",
+            "jawOpen",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let p = default_priors(&rig);
+        assert_eq!(p.fixed, vec![false, false, false, false, true, false]);
+        assert!(p.exclusive.contains(&(1, 0)) && p.exclusive.contains(&(3, 2)));
+        assert!(!p.exclusive.contains(&(1, 2)) && !p.exclusive.contains(&(3, 0)));
+        p.validate(6).unwrap();
+    }
+}
