@@ -121,8 +121,7 @@ impl RunReport {
         self.sink_seconds
             .iter()
             .filter(|(n, _)| n == name)
-            .map(|(_, s)| s)
-            .sum()
+            .fold(0.0, |acc, (_, s)| acc + s)
     }
 }
 
