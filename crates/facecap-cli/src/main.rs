@@ -20,6 +20,7 @@ mod cmd_info;
 mod cmd_landmarks;
 mod cmd_landmarks_video;
 mod cmd_muscle;
+mod cmd_rig;
 mod cmd_solve;
 mod cmd_synth;
 mod cmd_tensor;
@@ -67,6 +68,8 @@ enum Command {
     Capture(cmd_capture::Args),
     /// Make a synthetic ground-truth video from a real face photo.
     Synth(cmd_synth::Args),
+    /// What the 68 landmarks see of a rig's shapes, and the priors capture solves with.
+    Rig(cmd_rig::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -81,6 +84,7 @@ fn main() -> std::process::ExitCode {
         Command::Transfer(a) => cmd_tensor::run_transfer(a),
         Command::Capture(a) => cmd_capture::run(a),
         Command::Synth(a) => cmd_synth::run(a),
+        Command::Rig(a) => cmd_rig::run(a),
     };
     match result {
         Ok(code) => code,

@@ -18,6 +18,7 @@ use facecap_core::camera::{pose_row, Intrinsics, ModelToCamera};
 use facecap_core::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 use facecap_core::pnp::{solve_pnp, PnpParams};
+use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
 use facecap_solve::{
     AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
 };
@@ -149,6 +150,68 @@ pub struct ExpressionSink<'a> {
     result: ExpressionResult,
     pnp_model: Vec<Point3<f64>>,
     pnp_image: Vec<Point2<f64>>,
+    /// The solver's weights of the last solved frame (without the gaze shapes' values).
+    prev_solver_weights: Vec<f64>,
+    gaze: Gaze,
+}
+
+/// The gaze shapes (`eyeLook*`) from the iris centres against the subject's resting
+/// gaze: the solver holds them at 0 and their weights come from
+/// [`facecap_landmarks::gaze::gaze_weights`] on every solved frame with an iris estimate.
+#[derive(Debug, Clone, Default)]
+struct Gaze {
+    /// The gaze shapes' indices in the rig, in `GAZE_WEIGHT_NAMES` order.
+    idx: [Option<usize>; 8],
+    /// The subject's resting gaze (the clip median when every frame is known first).
+    rest: Option<GazeRest>,
+    /// Whether `rest` is the whole clip's median (else a running one).
+    rest_from_clip: bool,
+    /// Iris estimates so far (the running rest when frames stream).
+    seen: Vec<IrisFrame>,
+}
+
+/// Iris estimates kept for the running resting gaze, at most.
+const GAZE_SEEN_MAX: usize = 100_000;
+/// Frames between updates of the running resting gaze (and before the first).
+const GAZE_REST_EVERY: usize = 15;
+
+impl Gaze {
+    fn new(names: &[String]) -> Self {
+        use facecap_solve::observability::split_side;
+        let mut idx = [None; 8];
+        for (slot, want) in idx.iter_mut().zip(facecap_landmarks::gaze::GAZE_WEIGHT_NAMES) {
+            let (wb, ws) = split_side(want);
+            *slot = names.iter().position(|n| split_side(n) == (wb, ws));
+        }
+        Gaze { idx, ..Gaze::default() }
+    }
+
+    fn active(&self) -> bool {
+        self.idx.iter().any(Option::is_some)
+    }
+
+    /// Writes this frame's gaze weights into `weights`.
+    fn apply(&mut self, iris: Option<&IrisFrame>, weights: &mut [f64]) {
+        if !self.active() {
+            return;
+        }
+        let Some(iris) = iris else { return };
+        if !self.rest_from_clip && self.seen.len() < GAZE_SEEN_MAX {
+            // streaming: the running median of the frames so far stands in for the clip's
+            self.seen.push(*iris);
+            let seen = self.seen.len();
+            if seen >= GAZE_REST_EVERY && (seen % GAZE_REST_EVERY == 0 || self.rest.is_none()) {
+                self.rest = GazeRest::median_of(&self.seen);
+            }
+        }
+        let Some(rest) = self.rest else { return };
+        let g = facecap_landmarks::gaze::gaze_weights(iris, &rest, &GazeGains::default());
+        for (slot, v) in self.idx.iter().zip(g) {
+            if let Some(k) = slot {
+                weights[*k] = v;
+            }
+        }
+    }
 }
 
 impl std::fmt::Debug for ExpressionSink<'_> {
@@ -210,6 +273,8 @@ impl<'a> ExpressionSink<'a> {
             },
             pnp_model: Vec::with_capacity(NUM_LANDMARKS),
             pnp_image: Vec::with_capacity(NUM_LANDMARKS),
+            prev_solver_weights: vec![0.0; setup.rig.names.len()],
+            gaze: Gaze::new(&setup.rig.names),
         })
     }
 
@@ -231,11 +296,8 @@ impl<'a> ExpressionSink<'a> {
             solution,
         } = sv;
         let n = solver.num_shapes();
-        let (prev_weights, prev_pose) = self
-            .result
-            .frames
-            .last()
-            .map_or((vec![0.0; n], None), |f| (f.weights.clone(), f.pose));
+        let prev_pose = self.result.frames.last().and_then(|f| f.pose);
+        let prev_weights = self.prev_solver_weights.clone();
         let mut out = SolvedFrame {
             index: face.index,
             timestamp: face.timestamp,
@@ -252,6 +314,8 @@ impl<'a> ExpressionSink<'a> {
                 Ok(_) => {
                     out.success = true;
                     out.weights.copy_from_slice(&solution.weights);
+                    self.gaze.apply(face.iris.as_ref(), &mut out.weights);
+                    self.prev_solver_weights.copy_from_slice(&solution.weights);
                     out.reprojection_px = solution.reprojection_error(l);
                     out.pose = match solution.pose {
                         Some(p) => Some(p),
@@ -358,6 +422,10 @@ impl Sink for ExpressionSink<'_> {
         self.sheet_policy
     }
 
+    fn wants_iris(&self) -> bool {
+        self.gaze.active()
+    }
+
     fn frame(&mut self, face: &TrackedFace) -> Result<()> {
         match self.solving.take() {
             Some(mut sv) => {
@@ -384,6 +452,9 @@ impl Sink for ExpressionSink<'_> {
             .collect();
         let (solver, report) = build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
         self.result.neutral_report = report;
+        let irises: Vec<IrisFrame> = self.buffered.iter().filter_map(|t| t.iris).collect();
+        self.gaze.rest = GazeRest::median_of(&irises);
+        self.gaze.rest_from_clip = self.gaze.rest.is_some();
         let faces = std::mem::take(&mut self.buffered);
         let mut sv = Solving::new(solver);
         for face in &faces {

@@ -20,8 +20,11 @@ pub struct TrackedFace {
     pub confidence: f64,
     /// The box the shape predictor used, when there was one.
     pub rect: Option<Rect>,
-    /// The grey frame, when some sink asked for this frame's image ([`Sink::images`]).
+    /// The grey frame, when this sink asked for this frame's image ([`Sink::images`]).
     pub gray: Option<Arc<GrayImage>>,
+    /// Iris centres (when some sink asked for them, [`Sink::wants_iris`], and the face
+    /// was tracked).
+    pub iris: Option<facecap_landmarks::gaze::IrisFrame>,
 }
 
 /// Which frames' grey images a sink needs.
@@ -66,6 +69,11 @@ pub trait Sink: Send {
     /// Which frames' images this sink needs (default: none).
     fn images(&self) -> FrameImages {
         FrameImages::None
+    }
+    /// Whether this sink needs the iris centres (the gaze signal) of tracked frames
+    /// (default: no; they are estimated on the tracking thread from the grey frame).
+    fn wants_iris(&self) -> bool {
+        false
     }
     /// One tracked frame.
     ///

@@ -18,6 +18,7 @@ use facecap_core::csv::LandmarkRecord;
 use facecap_core::video::{open_source, Frame, FrameSource, SourceOptions, VideoInfo};
 use facecap_landmarks::detect::FaceDetector;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
+use facecap_landmarks::gaze::{IrisEstimator, IrisFrame, IrisParams};
 use facecap_landmarks::tracker::one_euro::OneEuroParams;
 use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
 
@@ -77,6 +78,7 @@ impl TrackerPolicy {
 #[derive(Debug)]
 pub struct VideoTracker {
     tracker: LandmarkTracker<FaceDetector, ShapePredictor>,
+    iris: IrisEstimator,
 }
 
 /// Per-run controls: interruption and a per-frame callback on the tracking thread.
@@ -157,6 +159,7 @@ impl VideoTracker {
         }
         Ok(VideoTracker {
             tracker: LandmarkTracker::new(detector, ert, params)?,
+            iris: IrisEstimator::new(IrisParams::default())?,
         })
     }
 
@@ -178,6 +181,10 @@ impl VideoTracker {
         }
         let wants: Vec<_> = sinks.iter().map(|s| s.images()).collect();
         let names: Vec<String> = sinks.iter().map(|s| s.name().to_string()).collect();
+        let want_iris = sinks.iter().any(|s| s.wants_iris());
+        let mut iris_ws = self.iris.new_workspace();
+        let mut iris_frame = IrisFrame::default();
+        let iris_estimator = &self.iris;
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(DECODED_QUEUE);
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
         let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(TRACKED_QUEUE);
@@ -223,6 +230,14 @@ impl VideoTracker {
                         }
                     }
                     let keep = wanted != 0;
+                    let iris = if want_iris && tracked.success {
+                        iris_estimator
+                            .estimate_into(&frame.gray, &tracked.landmarks, &mut iris_ws, &mut iris_frame)
+                            .ok()
+                            .map(|_| iris_frame)
+                    } else {
+                        None
+                    };
                     let face = TrackedFace {
                         index: frame.index,
                         timestamp: frame.timestamp_s.max(0.0),
@@ -230,6 +245,7 @@ impl VideoTracker {
                         confidence: tracked.confidence,
                         rect: tracked.rect,
                         gray: keep.then(|| Arc::new(frame.gray.clone())),
+                        iris,
                     };
                     let msg = Tracked { face, wanted };
                     frames += 1;
@@ -313,6 +329,7 @@ pub fn replay(records: &[LandmarkRecord], sinks: &mut [&mut dyn Sink]) -> Result
                 confidence: r.confidence,
                 rect: None,
                 gray: None,
+                iris: None,
             },
             wanted: 0,
         }),

@@ -45,7 +45,7 @@ use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
 /// |---|---|---|---|
 /// | `max_frames` | 150 | frames used per pass (evenly spaced over the clip) | 1-100000 |
 /// | `iterations` | 3 | solve / refit passes | 1-20 |
-/// | `rest_fraction` | 0.4 | share of the frames taken as resting after the first pass | (0, 1] |
+/// | `rest_fraction` | 0.8 | share of the frames taken as resting after the first pass | (0, 1] |
 /// | `alpha_xy` | 5.0 | ridge on the image-plane offset (% IOD)^2 per unit^2 | `[0, 1e9]` |
 /// | `alpha_z` | 500.0 | ridge on the depth offset | `[0, 1e9]` |
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -67,7 +67,7 @@ impl Default for SubjectParams {
         SubjectParams {
             max_frames: 150,
             iterations: 3,
-            rest_fraction: 0.4,
+            rest_fraction: 0.8,
             alpha_xy: 5.0,
             alpha_z: 500.0,
         }

@@ -59,7 +59,7 @@ const UNSEEN: [(&str, &str); 4] = [
 ];
 
 /// Ridge (px^2 at IOD 100 px) of a shape with independence 1; see [`default_priors`].
-pub const BASE_RIDGE: f64 = 2.0;
+pub const BASE_RIDGE: f64 = 15.0;
 
 /// Exclusive pairs by ARKit base name (sided names are paired side by side).
 const EXCLUSIVE: [(&str, &str); 11] = [
@@ -106,7 +106,43 @@ fn rig_iod(rig: &BlendshapeRig) -> f64 {
     }
 }
 
-/// The visibility table of `rig` (module docs), in rig order.
+/// Why `name` is held at 0 with 68 landmarks (`None`: it is solved).
+fn unseen_reason(name: &str, motion: f64) -> Option<&'static str> {
+    UNSEEN
+        .iter()
+        .find(|(p, _)| name.starts_with(p))
+        .map(|(_, why)| *why)
+        .or(if motion < 1e-3 {
+            Some("does not move the landmarks")
+        } else {
+            None
+        })
+}
+
+/// ARKit antagonist pairs present in `rig` (module docs), as index pairs.
+pub fn exclusive_pairs(rig: &BlendshapeRig) -> Vec<(usize, usize)> {
+    let index = |base: &str, side: Option<char>| {
+        rig.names.iter().position(|n| {
+            let (b, s) = split_side(n);
+            b == base && (s == side || s.is_none() || side.is_none())
+        })
+    };
+    let mut out = Vec::new();
+    for (a, b) in EXCLUSIVE {
+        for side in [Some('L'), Some('R'), None] {
+            if let (Some(i), Some(j)) = (index(a, side), index(b, side)) {
+                if i != j && !out.contains(&(i, j)) {
+                    out.push((i, j));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The visibility table of `rig` (module docs), in rig order. A shape's independence is
+/// measured against the shapes that can be active together with it: not those held at 0,
+/// not its exclusive antagonists.
 pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
     let n = rig.num_shapes();
     let iod = rig_iod(rig);
@@ -121,6 +157,8 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
         }
     }
     let norms: Vec<f64> = (0..n).map(|k| fields.column(k).norm()).collect();
+    let fixed: Vec<Option<&'static str>> = (0..n).map(|k| unseen_reason(&rig.names[k], norms[k])).collect();
+    let exclusive = exclusive_pairs(rig);
     (0..n)
         .map(|k| {
             let name = rig.names[k].clone();
@@ -128,13 +166,21 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
             let max_point = (0..NUM_LANDMARKS)
                 .map(|l| fields[(2 * l, k)].hypot(fields[(2 * l + 1, k)]))
                 .fold(0.0, f64::max);
-            let others: Vec<usize> = (0..n).filter(|&j| j != k && norms[j] > 0.0).collect();
+            let together: Vec<usize> = (0..n)
+                .filter(|&j| {
+                    j != k
+                        && norms[j] > 0.0
+                        && fixed[j].is_none()
+                        && !exclusive.contains(&(j, k))
+                        && !exclusive.contains(&(k, j))
+                })
+                .collect();
             let independence = if motion <= 0.0 {
                 0.0
-            } else if others.is_empty() {
+            } else if together.is_empty() {
                 1.0
             } else {
-                let a = DMatrix::from_fn(rows, others.len(), |r, c| fields[(r, others[c])]);
+                let a = DMatrix::from_fn(rows, together.len(), |r, c| fields[(r, together[c])]);
                 let b = DVector::from_column_slice(fields.column(k).as_slice());
                 // min ||A x - b|| through the SVD (rank-deficient sets are common)
                 let svd = a.clone().svd(true, true);
@@ -143,27 +189,18 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
                     Err(_) => 1.0,
                 }
             };
-            let closest = others
-                .iter()
-                .map(|&j| (j, fields.column(k).dot(&fields.column(j)) / (motion * norms[j])))
+            let closest = (0..n)
+                .filter(|&j| j != k && norms[j] > 0.0)
+                .map(|j| (j, fields.column(k).dot(&fields.column(j)) / (motion * norms[j])))
                 .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
                 .map(|(j, c)| (rig.names[j].clone(), c));
-            let fixed_because = UNSEEN
-                .iter()
-                .find(|(p, _)| name.starts_with(p))
-                .map(|(_, why)| *why)
-                .or(if motion < 1e-3 {
-                    Some("does not move the landmarks")
-                } else {
-                    None
-                });
             ShapeVisibility {
                 name,
                 motion,
                 max_point,
                 independence,
                 closest,
-                fixed_because,
+                fixed_because: fixed[k],
             }
         })
         .collect()
@@ -180,21 +217,7 @@ pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
         p.fixed[k] = v.fixed_because.is_some();
         p.ridge[k] = BASE_RIDGE / v.independence.max(0.1).powi(2);
     }
-    let index = |base: &str, side: Option<char>| {
-        rig.names.iter().position(|n| {
-            let (b, s) = split_side(n);
-            b == base && (s == side || s.is_none() || side.is_none())
-        })
-    };
-    for (a, b) in EXCLUSIVE {
-        for side in [Some('L'), Some('R'), None] {
-            if let (Some(i), Some(j)) = (index(a, side), index(b, side)) {
-                if i != j && !p.exclusive.contains(&(i, j)) {
-                    p.exclusive.push((i, j));
-                }
-            }
-        }
-    }
+    p.exclusive = exclusive_pairs(rig);
     p
 }
 
