@@ -174,13 +174,32 @@ fn commands_agree_on_their_shared_outputs() {
     assert_eq!(lm.lines().count(), 31, "30 frames + header");
     assert_eq!(read(&d.join("lm/landmarks.csv")), lm, "landmarks VIDEO vs capture");
     assert_eq!(read(&d.join("tensor/landmarks.csv")), lm, "tensor fit vs capture");
-    // Same pose.csv and weights.csv numbers from solve and capture.
-    for f in ["pose.csv", "weights.csv", "openface.csv", "livelink.csv"] {
-        assert_eq!(
-            read(&d.join("solve").join(f)),
-            read(&cap.join(f)),
-            "{f}: solve vs capture"
-        );
+    // Same pose.csv numbers from solve and capture; the same weights except the gaze
+    // shapes (`eyeLook*`), which capture takes from the iris in the images and a
+    // landmarks CSV cannot carry.
+    assert_eq!(
+        read(&d.join("solve/pose.csv")),
+        read(&cap.join("pose.csv")),
+        "pose.csv: solve vs capture"
+    );
+    let (sw, cw) = (read(&d.join("solve/weights.csv")), read(&cap.join("weights.csv")));
+    let head: Vec<&str> = cw.lines().next().unwrap().split(',').collect();
+    assert_eq!(sw.lines().next(), cw.lines().next(), "weights.csv header");
+    assert!(
+        head.iter().any(|h| h.starts_with("eyeLook")),
+        "the ICT rig has gaze shapes"
+    );
+    for (a, b) in sw.lines().zip(cw.lines()).skip(1) {
+        for ((h, x), y) in head.iter().zip(a.split(',')).zip(b.split(',')) {
+            if h.starts_with("eyeLook") {
+                assert!(
+                    x == "nan" || x.parse::<f64>().unwrap() == 0.0,
+                    "solve has no gaze signal: {h} = {x}"
+                );
+            } else {
+                assert_eq!(x, y, "weights.csv column {h}: solve vs capture");
+            }
+        }
     }
     let rx = column(&cap.join("pose.csv"), "pose_Rx");
     assert!(
@@ -266,6 +285,26 @@ fn animation_glb_moves_the_head_and_livelink_follows_the_pose() {
     for (i, t) in times.iter().enumerate() {
         // keys on whole frames at the video's rate
         assert!((f64::from(*t) * fps - i as f64).abs() < 1e-3, "key {i} at {t} s");
+    }
+    // With the built-in rig (no gaze shapes) solve reproduces every file of capture.
+    run_ok(
+        facecap()
+            .args(["solve", "--quiet", "--width", "480", "--height", "480", "--out"])
+            .arg(dir.path().join("s"))
+            .arg(cap.join("landmarks.csv")),
+    );
+    for f in [
+        "pose.csv",
+        "weights.csv",
+        "openface.csv",
+        "livelink.csv",
+        "animation.glb",
+    ] {
+        assert_eq!(
+            std::fs::read(dir.path().join("s").join(f)).unwrap(),
+            std::fs::read(cap.join(f)).unwrap(),
+            "{f}: solve vs capture"
+        );
     }
     let (_, still, _) = animation_channels(&dir.path().join("b/liveportrait_d18/animation.glb"));
     assert_eq!(still, ["MorphTargetWeights"]);
