@@ -36,13 +36,13 @@ pub struct FitOptions {
     #[arg(long, default_value = "regularised")]
     pub method: String,
     /// Identity prior weight lambda_id (model units^2).
-    #[arg(long, default_value_t = 1e-2)]
+    #[arg(long, default_value_t = 1.0)]
     pub lambda_id: f64,
     /// Expression prior weight lambda_exp (model units^2).
-    #[arg(long, default_value_t = 1e-2)]
+    #[arg(long, default_value_t = 1.0)]
     pub lambda_exp: f64,
     /// Projection of the weight steps: `weak` (thesis, z_avg) or `perspective` (per-point depth).
-    #[arg(long, default_value = "weak")]
+    #[arg(long, default_value = "perspective")]
     pub projection: String,
     /// Focal length in pixels (default: max(width, height)).
     #[arg(long)]

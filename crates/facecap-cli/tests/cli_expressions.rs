@@ -1,0 +1,179 @@
+//! Expression weights on real footage against an independent reference: `facecap capture`
+//! on the shared clip liveportrait_d18 with the built-in rig and with the ICT rig, scored
+//! per shape (Pearson r, Left/Right merged by mean, shapes where the reference moves) against
+//! MediaPipe FaceLandmarker's blendshape scores for the same clip, checked in as
+//! `testdata/expressions/mp_blendshapes_liveportrait_d18.csv` (made by
+//! `testdata/expressions/make_fixture.sh`; regenerate only on purpose). The same scoring as
+//! `scripts/eval_expressions.py`. The clip and the ICT rig are read from the shared data
+//! (research-only test material; `SKIP:` when absent).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn facecap() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_facecap"))
+}
+
+fn shared_data() -> Option<PathBuf> {
+    let p = std::env::var_os("FACECAP_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    p.join("videos/liveportrait_d18.mp4").is_file().then_some(p)
+}
+
+fn models_present() -> bool {
+    let cache = std::env::var_os("FACECAP_CACHE")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache").join("facecap")));
+    let Some(c) = cache else { return false };
+    let models = std::env::var_os("FACECAP_MODELS").map_or(c.join("models"), PathBuf::from);
+    models.join("shape_predictor_68_face_landmarks.dat").is_file()
+}
+
+/// `eyeBlinkLeft` / `eyeBlink_L` -> `eyeBlink`; `mouthLeft`, `jawRight` kept.
+fn base(name: &str) -> String {
+    for s in ["Left", "Right", "_L", "_R"] {
+        if let Some(b) = name.strip_suffix(s) {
+            if !b.is_empty() && b != "mouth" && b != "jaw" {
+                return b.to_string();
+            }
+        }
+    }
+    name.to_string()
+}
+
+/// Per base name, the per-frame mean of its sided curves (NaN where a frame failed).
+fn curves(path: &Path, first: usize) -> BTreeMap<String, Vec<f64>> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.trim().parse::<f64>().unwrap_or(f64::NAN))
+                .collect()
+        })
+        .collect();
+    let success = header.iter().position(|h| *h == "success").unwrap();
+    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (i, h) in header.iter().enumerate().skip(first) {
+        groups.entry(base(h)).or_default().push(i);
+    }
+    groups
+        .into_iter()
+        .map(|(b, cols)| {
+            let v = rows
+                .iter()
+                .map(|r| {
+                    if r[success] != 1.0 {
+                        return f64::NAN;
+                    }
+                    cols.iter().map(|&c| r[c]).sum::<f64>() / cols.len() as f64
+                })
+                .collect();
+            (b, v)
+        })
+        .collect()
+}
+
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    if saa < 1e-24 || sbb < 1e-24 {
+        0.0
+    } else {
+        sab / (saa * sbb).sqrt()
+    }
+}
+
+/// Per-shape r of a capture's weights.csv against the fixture.
+fn score(weights: &Path) -> BTreeMap<String, f64> {
+    let fixture =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../testdata/expressions/mp_blendshapes_liveportrait_d18.csv");
+    let reference = curves(&fixture, 2);
+    let ours = curves(weights, 4);
+    let mut out = BTreeMap::new();
+    for (b, r) in &reference {
+        let Some(o) = ours.get(b) else { continue };
+        let (mut x, mut y) = (Vec::new(), Vec::new());
+        for (a, c) in o.iter().zip(r) {
+            if a.is_finite() && c.is_finite() {
+                x.push(*a);
+                y.push(*c);
+            }
+        }
+        let n = y.len() as f64;
+        let m = y.iter().sum::<f64>() / n;
+        let sd = (y.iter().map(|v| (v - m).powi(2)).sum::<f64>() / n).sqrt();
+        if y.len() >= 10 && sd >= 0.05 {
+            out.insert(b.clone(), pearson(&x, &y));
+        }
+    }
+    out
+}
+
+fn capture(data: &Path, out: &Path, extra: &[String]) -> PathBuf {
+    let st = facecap()
+        .args(["capture", "--quiet", "--out"])
+        .arg(out)
+        .arg(data.join("videos/liveportrait_d18.mp4"))
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    out.join("liveportrait_d18").join("weights.csv")
+}
+
+#[test]
+fn weights_follow_mediapipe_on_a_real_clip() {
+    let (Some(data), true) = (shared_data(), models_present()) else {
+        eprintln!("SKIP: weights_follow_mediapipe: shared data (liveportrait_d18) or the dlib models absent");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    // Bounds: the measured figures of 2026-12-01 (docs/expressions.md) minus a margin.
+    let builtin = score(&capture(&data, &dir.path().join("builtin"), &[]));
+    eprintln!("built-in rig: {builtin:?}");
+    let mean = builtin.values().sum::<f64>() / builtin.len() as f64;
+    assert!(builtin.len() >= 5, "{builtin:?}");
+    assert!(mean >= 0.65, "built-in rig mean r {mean} (measured 0.75)");
+    for (shape, bound) in [("jawOpen", 0.8), ("eyeBlink", 0.75), ("mouthSmile", 0.7)] {
+        assert!(
+            builtin[shape] >= bound,
+            "built-in {shape} r {} < {bound}",
+            builtin[shape]
+        );
+    }
+    let ict = data.join("models3d/ict_facekit");
+    if !ict.join("ict_face_arkit53.glb").is_file() {
+        eprintln!("SKIP: ICT part: {} absent", ict.display());
+        return;
+    }
+    let args = vec![
+        "--rig".to_string(),
+        ict.join("ict_face_arkit53.glb").display().to_string(),
+        "--landmark-map".to_string(),
+        ict.join("ict_landmarks68.json").display().to_string(),
+    ];
+    let r = score(&capture(&data, &dir.path().join("ict"), &args));
+    eprintln!("ICT rig: {r:?}");
+    let mean = r.values().sum::<f64>() / r.len() as f64;
+    assert!(r.len() >= 10, "{r:?}");
+    assert!(mean >= 0.42, "ICT rig mean r {mean} (measured 0.51)");
+    for (shape, bound) in [
+        ("jawOpen", 0.8),
+        ("eyeBlink", 0.85),
+        ("mouthSmile", 0.85),
+        ("eyeLookDown", 0.5),
+    ] {
+        assert!(r[shape] >= bound, "ICT {shape} r {} < {bound}", r[shape]);
+    }
+}
