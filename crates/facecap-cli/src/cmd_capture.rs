@@ -5,7 +5,8 @@
 //! Per video, in `DIR/<video-stem>/`: `landmarks.csv`, `pose.csv`, `weights.csv`
 //! (named columns), `livelink.csv` (Live Link Face layout, when the rig's shape names
 //! are ARKit names), `contractions.csv` (with `--muscles`), `tensor.csv` (with
-//! `--tensor`), `animation.glb`, `obj/frame_NNNNNN.obj` (with `--obj`), `report.html`
+//! `--tensor`), `openface.csv` (OpenFace 2.x layout), `animation.glb` (morph weights and head motion),
+//! `obj/frame_NNNNNN.obj` (with `--obj`), `report.html`
 //! with its images, and `summary.json`, written **last**: a folder without it is not a
 //! finished capture, and reruns skip only folders that have it (unless `--force`).
 //! Every file is written atomically (temporary file + rename), so an interrupt or a
@@ -18,15 +19,17 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
-use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_core::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow, POSE_COLUMNS};
-use facecap_core::gltf_io::MorphAnimation;
+use facecap_core::camera::{pose_row, Intrinsics};
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_core::landmarks::Landmarks68;
 use facecap_core::mesh::MorphMesh;
-use facecap_core::video::{open_source, Frame, SourceOptions};
-use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
-use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, Solution, SolveState};
+use facecap_pipeline::expression::{ExpressionResult, SolvedFrame};
+use facecap_pipeline::outputs::{ObjSpace, SolveOutputs};
+use facecap_pipeline::{
+    Calibrated, ExpressionSetup, ExpressionSink, FrameImages, LandmarkCsvSink, MuscleSetup, MuscleSink,
+    NeutralCalibration, RunControl, Sink, TensorSetup, TensorSink, TrackerPolicy, VideoTracker,
+};
+use facecap_solve::{AnySolver, BlendshapeRig, Method, ObjectiveParams};
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
 use serde_json::json;
@@ -35,6 +38,9 @@ use crate::report;
 
 /// Arguments of `facecap capture`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap capture clip.mp4 --out captures/\n  facecap capture a.mp4 b.mp4 --out captures/ --solver exact3d --rig ict.glb --landmark-map ict_landmarks68.json --obj-space camera"
+)]
 pub struct Args {
     /// Input videos (files, Y4M, or folders of images).
     #[arg(required = true)]
@@ -63,9 +69,16 @@ pub struct Args {
     /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
     #[arg(long)]
     pub camera: Option<String>,
-    /// Also write one OBJ per frame.
+    /// Also write one OBJ per frame (`obj/frame_NNNNNN.obj`, rig space; see --obj-space).
     #[arg(long)]
     pub obj: bool,
+    /// Frame of the OBJs: `model` (the rig's, expression only) or `camera` (posed by
+    /// the head pose, camera axes). Implies --obj.
+    #[arg(long, value_name = "camera|model", value_parser = ["camera", "model"])]
+    pub obj_space: Option<String>,
+    /// Keep the head still in `animation.glb` (morph weights only, no node motion).
+    #[arg(long)]
+    pub still_head: bool,
     /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`, px^2).
     /// The default cuts the weights' jitter on resting stretches by a quarter with no lag at
     /// blink onset (docs/expressions.md, "Temporal"); 0 turns it off.
@@ -94,9 +107,6 @@ pub struct Args {
     /// Number of frames on the report's contact sheet.
     #[arg(long, default_value_t = 12)]
     pub sheet_frames: usize,
-    /// No progress output.
-    #[arg(long)]
-    pub quiet: bool,
     /// Print a JSON summary of all videos on stdout.
     #[arg(long)]
     pub json: bool,
@@ -107,38 +117,71 @@ pub struct Args {
     pub upsample: Upsample,
 }
 
-/// The solver's time-aligned per-frame output kept for the animation and report.
-#[derive(Debug, Clone)]
-struct FrameOut {
-    timestamp: f64,
-    success: bool,
-    confidence: f64,
-    landmarks: Option<Landmarks68>,
-    weights: Vec<f64>,
-    pose: Option<ModelToCamera>,
-    reprojection_px: f64,
-}
-
 /// Everything shared by all videos.
 struct Setup {
     rig_mesh: MorphMesh,
-    rig: BlendshapeRig,
+    expression: ExpressionSetup,
     rig_name: String,
-    method: Method,
-    objective: ObjectiveParams,
     camera: Option<Intrinsics>,
-    tracker: LandmarkTracker<facecap_landmarks::detect::FaceDetector, facecap_landmarks::ert::ShapePredictor>,
-    /// Iris centres from the grey frames: the gaze signal of the rig's `eyeLook*` shapes.
-    iris: facecap_landmarks::gaze::IrisEstimator,
-    muscles: Option<crate::capture_extras::MuscleSetup>,
-    tensor: Option<crate::capture_extras::TensorSetup>,
-    neutral: crate::neutral::NeutralChoice,
-    /// Whether the rig's measured default priors are used (3D solver).
-    use_priors: bool,
+    tracker: VideoTracker,
+    muscles: Option<MuscleSetup>,
+    tensor: Option<TensorSetup>,
+    neutral: NeutralHook,
+    obj_space: Option<ObjSpace>,
     args_echo: serde_json::Value,
 }
 
-fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
+/// The neutral calibration of `crate::neutral` behind the pipeline's hook: `auto` with
+/// `exact3d` fits the subject's neutral in 3D over resting frames, everything else
+/// calibrates on one frame.
+pub(crate) struct NeutralHook {
+    pub(crate) choice: crate::neutral::NeutralChoice,
+    pub(crate) method: Method,
+    pub(crate) objective: ObjectiveParams,
+    pub(crate) priors: Option<facecap_solve::ShapePriors>,
+}
+
+impl NeutralHook {
+    /// Whether a calibration was asked for.
+    pub(crate) fn active(&self) -> bool {
+        self.choice != crate::neutral::NeutralChoice::None
+    }
+}
+
+impl NeutralCalibration for NeutralHook {
+    fn calibrate(
+        &self,
+        solver: &AnySolver,
+        rig: &BlendshapeRig,
+        camera: Intrinsics,
+        frames: &[(u64, Landmarks68)],
+    ) -> Result<Calibrated, facecap_pipeline::error::BoxError> {
+        let c = match (self.choice, self.method) {
+            (crate::neutral::NeutralChoice::Auto, Method::Exact3d) => crate::neutral::calibrate_subject(
+                rig,
+                camera,
+                self.objective,
+                self.priors
+                    .as_ref()
+                    .unwrap_or(&facecap_solve::ShapePriors::neutral(rig.num_shapes())),
+                frames,
+            )?,
+            _ => crate::neutral::calibrate(self.choice, solver, rig, camera, frames)?,
+        };
+        Ok(Calibrated {
+            rig: c.rig,
+            report: c.report,
+        })
+    }
+}
+
+/// The rig's measured default priors (docs/expressions.md).
+pub(crate) fn rig_priors(rig: &BlendshapeRig) -> Option<facecap_solve::ShapePriors> {
+    Some(facecap_solve::observability::default_priors(rig))
+}
+
+/// Parses `fx,fy,cx,cy`.
+pub(crate) fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
     let v: Vec<f64> = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())
@@ -156,6 +199,11 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     if !(args.temporal.is_finite() && args.temporal >= 0.0) {
         anyhow::bail!("--temporal must be finite and >= 0, got {}", args.temporal);
     }
+    let obj_space = match (&args.obj_space, args.obj) {
+        (Some(s), _) => Some(s.parse::<ObjSpace>()?),
+        (None, true) => Some(ObjSpace::Model),
+        (None, false) => None,
+    };
     let (rig_mesh, map, rig_name) = match &args.rig {
         Some(path) => {
             let map_path = args
@@ -178,34 +226,38 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     };
     objective.validate()?;
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
-    let detector = facecap_landmarks::detect::FaceDetector::default_model()?.with_upsample(args.upsample)?;
-    let ert_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).ok_or_else(|| {
-        anyhow::anyhow!(
-            "{} is not in the model cache: run scripts/setup.sh",
-            facecap_core::paths::DLIB_68_MODEL
-        )
+    let tracker = VideoTracker::new(&TrackerPolicy {
+        smooth: args.smooth,
+        shape_model: None,
+        upsample: args.upsample,
     })?;
-    // Sub-pixel output: dlib rounds to whole pixels, which adds jitter to tracking.
-    let ert = facecap_landmarks::ert::ShapePredictor::from_file_cached(&ert_path)?
-        .0
-        .with_params(facecap_landmarks::ert::ErtParams {
-            output: facecap_landmarks::ert::OutputPrecision::SubPixel,
-        });
-    let mut tracker_params = TrackerParams::default();
-    if args.smooth {
-        tracker_params.filter = Some(facecap_landmarks::tracker::one_euro::OneEuroParams::default());
-    }
-    let tracker = LandmarkTracker::new(detector, ert, tracker_params)?;
-    let iris = facecap_landmarks::gaze::IrisEstimator::new(facecap_landmarks::gaze::IrisParams::default())?;
     let muscles = args
         .muscles
         .as_deref()
-        .map(|m| crate::capture_extras::MuscleSetup::new(m, &rig_mesh, &map))
+        .map(|m| -> anyhow::Result<MuscleSetup> {
+            let set = (m != "default")
+                .then(|| facecap_muscle::set::MuscleSet::from_json_file(Path::new(m)))
+                .transpose()?;
+            Ok(MuscleSetup::new(
+                set.as_ref(),
+                &rig_mesh,
+                &map,
+                facecap_muscle::track::SolveMode::Global,
+            )?)
+        })
         .transpose()?;
     let tensor = args
         .tensor
         .as_deref()
-        .map(|p| crate::capture_extras::TensorSetup::new(p, args.tensor_landmark_map.as_deref()))
+        .map(|p| -> anyhow::Result<TensorSetup> {
+            let model = facecap_tensor::model::TensorModel::load(p)?;
+            let map_path = args.tensor_landmark_map.as_deref().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--tensor needs --tensor-landmark-map (68 iBUG landmarks -> vertices of the tensor mesh)"
+                )
+            })?;
+            Ok(TensorSetup::new(&model, &LandmarkMap::from_json_file(map_path)?)?)
+        })
         .transpose()?;
     let args_echo = json!({
         "rig": rig_name,
@@ -215,23 +267,32 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "camera": args.camera,
         "muscles": args.muscles,
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
-        "obj": args.obj,
+        "obj": obj_space.map(|s| match s { ObjSpace::Model => "model", ObjSpace::Camera => "camera" }),
+        "still_head": args.still_head,
         "neutral": args.neutral,
         "priors": "observability defaults (facecap rig)",
     });
+    let priors = rig_priors(&rig);
     Ok(Setup {
         rig_mesh,
-        rig,
+        expression: ExpressionSetup {
+            rig,
+            method,
+            objective,
+            priors: priors.clone(),
+        },
         rig_name,
-        method,
-        objective,
         camera,
         tracker,
-        iris,
         muscles,
         tensor,
-        neutral,
-        use_priors: true,
+        neutral: NeutralHook {
+            choice: neutral,
+            method,
+            objective,
+            priors,
+        },
+        obj_space,
         args_echo,
     })
 }
@@ -264,7 +325,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
         .max(1);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build()?;
-    let progress = crate::progress::Progress::new(args.quiet);
+    let progress = crate::progress::Progress::new(crate::out::quiet());
     let t0 = Instant::now();
     let outcomes: Vec<(PathBuf, Outcome)> = pool.install(|| {
         args.videos
@@ -281,10 +342,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 } else {
                     match capture_one(video, &out_dir, &args, &setup, &interrupted, &progress) {
                         Ok(v) => Outcome::Done(v),
-                        Err(e) => {
-                            progress.line(&format!("FAILED {}: {e:#}", video.display()));
-                            Outcome::Failed(format!("{e:#}"))
-                        }
+                        Err(e) => Outcome::Failed(crate::error_text(&e)),
                     }
                 };
                 (video.clone(), outcome)
@@ -299,28 +357,33 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             Outcome::Skipped(d) => report.push(json!({"video": video, "status": "skipped", "out": d})),
             Outcome::Failed(e) => {
                 all_ok = false;
+                // every error once, on stderr, also with --quiet
+                eprintln!("error: {}: {e}", video.display());
                 report.push(json!({"video": video, "status": "failed", "error": e}))
             }
         }
     }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}))?
-        );
-    } else if !args.quiet {
+        crate::out::println(&serde_json::to_string_pretty(
+            &json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}),
+        )?);
+    } else if !crate::out::quiet() {
         for (video, o) in &outcomes {
             match o {
-                Outcome::Done(v) => println!(
+                Outcome::Done(v) => crate::out::println(&format!(
                     "{}: {} frames, face on {}, {:.1} frames/s -> {}",
                     video.display(),
                     v["frames"],
                     v["faces_found"],
                     v["frames_per_second"].as_f64().unwrap_or(0.0),
                     args.out.join(video_stem(video)).display()
-                ),
-                Outcome::Skipped(d) => println!("{}: skipped (already captured in {})", video.display(), d.display()),
-                Outcome::Failed(e) => println!("{}: FAILED: {e}", video.display()),
+                )),
+                Outcome::Skipped(d) => crate::out::println(&format!(
+                    "{}: skipped (already captured in {})",
+                    video.display(),
+                    d.display()
+                )),
+                Outcome::Failed(_) => {}
             }
         }
     }
@@ -335,198 +398,10 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     })
 }
 
-/// One tracked frame, passed from the tracking to the solving stage.
-struct Tracked {
-    index: u64,
-    timestamp: f64,
-    /// The landmarks when tracking succeeded.
-    landmarks: Option<Landmarks68>,
-    confidence: f64,
-    /// Iris centres (only when the rig has gaze shapes and the face was tracked).
-    iris: Option<facecap_landmarks::gaze::IrisFrame>,
-    /// The grey frame, for the frames shown on the report's contact sheet.
-    gray: Option<GrayImage>,
-}
-
-/// The solving stage of [`capture_one`]: per tracked frame, solve for pose and
-/// weights, write the CSV rows (landmarks, pose, weights, muscles, tensor) and keep
-/// what the animation and report need.
-struct SolveStage<'a> {
-    video: &'a Path,
-    progress: &'a crate::progress::Progress,
-    lm_csv: &'a mut FrameCsvWriter,
-    pose_csv: &'a mut FrameCsvWriter,
-    w_csv: &'a mut FrameCsvWriter,
-    muscle_run: Option<&'a mut crate::capture_extras::MuscleRun>,
-    tensor_run: Option<&'a mut crate::capture_extras::TensorRun>,
-    bar: crate::progress::Bar,
-    /// Whether `run` advances the progress bar (not when tracking already did).
-    count_progress: bool,
-    sheet: Vec<(u64, GrayImage, FrameOut)>,
-    frames: Vec<FrameOut>,
-    faces_found: u64,
-    timings: Timings,
-    /// The gaze shapes' indices in the rig, in `GAZE_WEIGHT_NAMES` order.
-    gaze_idx: [Option<usize>; 8],
-    /// The subject's resting gaze (the clip median when every frame is known first).
-    gaze_rest: Option<facecap_landmarks::gaze::GazeRest>,
-    /// The rig's `eyeBlink*` shapes (see [`BLINK_GAIN`]).
-    blink_idx: Vec<usize>,
-    /// Whether `gaze_rest` is the whole clip's median (else a running one).
-    gaze_rest_from_clip: bool,
-    /// Iris estimates so far (the running rest when frames stream).
-    iris_seen: Vec<facecap_landmarks::gaze::IrisFrame>,
-}
-
-/// Gain on the solved `eyeBlink*` weights. dlib's 68 points never close an eye: on the
-/// shared clips a visibly closed eye keeps 30-55 % of its resting eye aspect ratio (d9:
-/// 0.08-0.15 against 0.28 at rest), so the solve reaches about 0.55 of a rig's full closure
-/// there. The gain maps that to 1 (docs/expressions.md, "Eyes").
-const BLINK_GAIN: f64 = 1.8;
-
-/// The rig's gaze shapes in [`facecap_landmarks::gaze::GAZE_WEIGHT_NAMES`] order (ARKit
-/// `eyeLookInLeft` or ICT `eyeLookIn_L` names).
-fn gaze_indices(names: &[String]) -> [Option<usize>; 8] {
-    use facecap_solve::observability::split_side;
-    let mut out = [None; 8];
-    for (slot, want) in out.iter_mut().zip(facecap_landmarks::gaze::GAZE_WEIGHT_NAMES) {
-        let (wb, ws) = split_side(want);
-        *slot = names.iter().position(|n| split_side(n) == (wb, ws));
-    }
-    out
-}
-
-impl SolveStage<'_> {
-    /// Writes the gaze weights of this frame into `weights` (the solve holds them at 0).
-    fn apply_gaze(&mut self, iris: Option<&facecap_landmarks::gaze::IrisFrame>, weights: &mut [f64]) {
-        if self.gaze_idx.iter().all(Option::is_none) {
-            return;
-        }
-        let Some(iris) = iris else { return };
-        if !self.gaze_rest_from_clip && self.iris_seen.len() < 100_000 {
-            // streaming: the running median of the frames so far stands in for the clip's
-            self.iris_seen.push(*iris);
-            let seen = self.iris_seen.len();
-            if seen >= 15 && (seen % 15 == 0 || self.gaze_rest.is_none()) {
-                self.gaze_rest = facecap_landmarks::gaze::GazeRest::median_of(&self.iris_seen);
-            }
-        }
-        let Some(rest) = self.gaze_rest else { return };
-        let g = facecap_landmarks::gaze::gaze_weights(iris, &rest, &facecap_landmarks::gaze::GazeGains::default());
-        for (slot, v) in self.gaze_idx.iter().zip(g) {
-            if let Some(k) = slot {
-                weights[*k] = v;
-            }
-        }
-    }
-
-    fn run(&mut self, solver: &AnySolver, queue: impl IntoIterator<Item = Tracked>) -> anyhow::Result<()> {
-        let n = solver.num_shapes();
-        let mut solver_ws = solver.workspace();
-        let mut solve_state = SolveState::new(n);
-        let mut solution = Solution::new(n);
-        let mut lm_values = [0.0; 2 * NUM_LANDMARKS];
-        let mut prev_weights = vec![0.0; n];
-        let nan_weights = vec![f64::NAN; n];
-        for msg in queue {
-            let lms = msg.landmarks;
-            landmark_values(lms.as_ref(), &mut lm_values);
-            self.lm_csv.write_row(&FrameRow {
-                frame: msg.index,
-                timestamp: msg.timestamp,
-                success: lms.is_some(),
-                confidence: msg.confidence,
-                values: &lm_values,
-            })?;
-            let t = Instant::now();
-            let mut out = FrameOut {
-                timestamp: msg.timestamp,
-                success: false,
-                confidence: msg.confidence,
-                landmarks: lms.clone(),
-                weights: prev_weights.clone(),
-                pose: None,
-                reprojection_px: f64::NAN,
-            };
-            if let Some(l) = &lms {
-                self.faces_found += 1;
-                match solver.solve_into(l, &mut solver_ws, &mut solve_state, &mut solution) {
-                    Ok(_) => {
-                        out.success = true;
-                        out.weights.copy_from_slice(&solution.weights);
-                        self.apply_gaze(msg.iris.as_ref(), &mut out.weights);
-                        for &k in &self.blink_idx {
-                            out.weights[k] = (out.weights[k] * BLINK_GAIN).min(1.0);
-                        }
-                        out.pose = solution.pose;
-                        out.reprojection_px = solution.reprojection_error(l);
-                        prev_weights.copy_from_slice(&solution.weights);
-                    }
-                    Err(e) => {
-                        self.progress.line(&format!(
-                            "{}: frame {}: solver failed: {e}",
-                            self.video.display(),
-                            msg.index
-                        ));
-                        solve_state.reset();
-                    }
-                }
-            } else {
-                solve_state.reset();
-            }
-            self.timings.solve += t.elapsed().as_secs_f64();
-            let pose_values = pose_row(out.pose.as_ref());
-            self.pose_csv.write_row(&FrameRow {
-                frame: msg.index,
-                timestamp: msg.timestamp,
-                success: out.success && out.pose.is_some(),
-                confidence: msg.confidence,
-                values: &pose_values,
-            })?;
-            self.w_csv.write_row(&FrameRow {
-                frame: msg.index,
-                timestamp: msg.timestamp,
-                success: out.success,
-                confidence: msg.confidence,
-                values: if out.success { &out.weights } else { &nan_weights },
-            })?;
-            if let Some(m) = self.muscle_run.as_deref_mut() {
-                let t = Instant::now();
-                m.frame(msg.index, msg.timestamp, lms.as_ref(), msg.confidence)?;
-                self.timings.muscles += t.elapsed().as_secs_f64();
-            }
-            if let Some(tr) = self.tensor_run.as_deref_mut() {
-                let t = Instant::now();
-                tr.frame(msg.index, msg.timestamp, lms.as_ref(), msg.confidence)?;
-                self.timings.tensor += t.elapsed().as_secs_f64();
-            }
-            if let Some(gray) = msg.gray {
-                self.sheet.push((msg.index, gray, out.clone()));
-            }
-            self.frames.push(out);
-            if self.count_progress {
-                self.bar.inc();
-            }
-        }
-        Ok(())
-    }
-}
-
 fn video_stem(p: &Path) -> String {
     p.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "video".into())
-}
-
-/// Per-stage wall times in seconds.
-#[derive(Debug, Default, Clone, Copy)]
-struct Timings {
-    decode: f64,
-    track: f64,
-    solve: f64,
-    muscles: f64,
-    tensor: f64,
-    write: f64,
 }
 
 fn capture_one(
@@ -538,14 +413,7 @@ fn capture_one(
     progress: &crate::progress::Progress,
 ) -> anyhow::Result<serde_json::Value> {
     let started = Instant::now();
-    let mut timings = Timings::default();
-    let mut source = open_source(
-        video,
-        &SourceOptions {
-            threads: args.decode_threads,
-            ..SourceOptions::default()
-        },
-    )?;
+    let source = facecap_pipeline::open_video(video, args.decode_threads)?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     // A previous finished capture is being redone: remove its completion marker first.
@@ -554,219 +422,89 @@ fn capture_one(
         Some(c) => c,
         None => Intrinsics::default_for_frame(info.width, info.height)?,
     };
-    let priors = setup
-        .use_priors
-        .then(|| facecap_solve::observability::default_priors(&setup.rig));
-    let with_priors = |s: AnySolver| -> anyhow::Result<AnySolver> {
-        Ok(match &priors {
-            Some(p) => s.with_priors(p.clone())?,
-            None => s,
-        })
-    };
-    let solver = with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?;
-    let tracker = &setup.tracker;
-    let mut tracker_ws = tracker.new_workspace();
-    let mut tracker_state = TrackerState::new();
-    let mut tracked = TrackedFrame::default();
-    let names: Vec<String> = solver.names().to_vec();
-
-    let mut lm_csv = FrameCsvWriter::create(out_dir.join("landmarks.csv"), &landmark_columns())?;
-    let mut pose_csv = FrameCsvWriter::create(out_dir.join("pose.csv"), &POSE_COLUMNS)?;
-    let mut w_csv = FrameCsvWriter::create(out_dir.join("weights.csv"), &names)?;
-    let mut muscle_run = setup.muscles.as_ref().map(|m| m.start(out_dir, camera)).transpose()?;
-    let mut tensor_run = setup.tensor.as_ref().map(|t| t.start(out_dir, camera)).transpose()?;
-
     let sheet_every = info
         .frame_count
-        .map(|n| (n as usize / args.sheet_frames.max(1)).max(1))
+        .map(|n| (n / args.sheet_frames.max(1) as u64).max(1))
         .unwrap_or(30);
-    let sheet_max = args.sheet_frames.max(1);
-    let calibrate = setup.neutral != crate::neutral::NeutralChoice::None;
-    // Three stages on their own threads, connected by short bounded queues:
-    // decoding (reads the ffmpeg pipe into reused frames), tracking (this thread),
-    // and solving + writing the per-frame outputs. Each stage's busy time is
-    // reported; frames stay in order because every queue is FIFO.
-    let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(4);
-    let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
-    let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(16);
-    let mut stage = SolveStage {
-        video,
-        progress,
-        lm_csv: &mut lm_csv,
-        pose_csv: &mut pose_csv,
-        w_csv: &mut w_csv,
-        muscle_run: muscle_run.as_mut(),
-        tensor_run: tensor_run.as_mut(),
-        bar: progress.bar(video, info.frame_count),
-        count_progress: true,
-        sheet: Vec::new(),
-        frames: Vec::new(),
-        faces_found: 0,
-        timings: Timings::default(),
-        gaze_idx: gaze_indices(&names),
-        gaze_rest: None,
-        gaze_rest_from_clip: false,
-        blink_idx: names
-            .iter()
-            .enumerate()
-            .filter(|(_, n)| facecap_solve::observability::split_side(n).0 == "eyeBlink")
-            .map(|(k, _)| k)
-            .collect(),
-        iris_seen: Vec::new(),
+    let calibrate = setup.neutral.active();
+    let mut landmarks = LandmarkCsvSink::create(out_dir.join("landmarks.csv"))?;
+    let mut solve = ExpressionSink::create(
+        out_dir,
+        &setup.expression,
+        Some(camera),
+        calibrate.then_some(&setup.neutral as &dyn NeutralCalibration),
+        FrameImages::Sample {
+            every: sheet_every,
+            max: args.sheet_frames.max(1),
+        },
+    )?;
+    let mut muscles = setup
+        .muscles
+        .as_ref()
+        .map(|m| MuscleSink::create(out_dir, m, camera))
+        .transpose()?;
+    let mut tensor = setup
+        .tensor
+        .as_ref()
+        .map(|t| TensorSink::create(out_dir, t, camera))
+        .transpose()?;
+    let mut bar = progress.bar(video, info.frame_count);
+    let run = {
+        let mut sinks: Vec<&mut dyn Sink> = vec![&mut landmarks, &mut solve];
+        if let Some(m) = muscles.as_mut() {
+            sinks.push(m);
+        }
+        if let Some(t) = tensor.as_mut() {
+            sinks.push(t);
+        }
+        let mut inc = || bar.inc();
+        setup.tracker.run(
+            source,
+            &mut sinks,
+            &mut RunControl {
+                interrupted: Some(interrupted),
+                on_frame: Some(&mut inc),
+            },
+        )?
     };
-    let want_iris = stage.gaze_idx.iter().any(Option::is_some);
-    let mut iris_ws = setup.iris.new_workspace();
-    let mut iris_frame = facecap_landmarks::gaze::IrisFrame::default();
-    let (decode_result, track_result, stage_result) = std::thread::scope(|scope| {
-        let decoder = scope.spawn(move || -> anyhow::Result<f64> {
-            let mut busy = 0.0;
-            loop {
-                let mut frame = recycle_rx.try_recv().unwrap_or_default();
-                let t = Instant::now();
-                if !source.read_into(&mut frame)? {
-                    return Ok(busy);
-                }
-                busy += t.elapsed().as_secs_f64();
-                if frame_tx.send(frame).is_err() {
-                    // the tracking stage stopped (error or interrupt)
-                    return Ok(busy);
-                }
-            }
-        });
-        let stage_ref = &mut stage;
-        let solver_ref = &solver;
-        let worker = scope.spawn(move || -> anyhow::Result<Vec<Tracked>> {
-            if calibrate {
-                // the neutral calibration needs every frame's landmarks first; the
-                // progress bar follows tracking here, the solving pass does not move it
-                stage_ref.count_progress = false;
-                Ok(track_rx.into_iter().inspect(|_| stage_ref.bar.inc()).collect())
-            } else {
-                stage_ref.run(solver_ref, track_rx).map(|()| Vec::new())
-            }
-        });
-        let track_result = (|| -> anyhow::Result<f64> {
-            let mut busy = 0.0;
-            let mut sent_sheet = 0usize;
-            for frame in frame_rx {
-                if interrupted.load(Ordering::SeqCst) {
-                    anyhow::bail!("interrupted at frame {}", frame.index);
-                }
-                let t = Instant::now();
-                tracker.track_into(
-                    &frame.gray,
-                    frame.timestamp_s,
-                    &mut tracker_ws,
-                    &mut tracker_state,
-                    &mut tracked,
-                )?;
-                busy += t.elapsed().as_secs_f64();
-                let keep = frame.index as usize % sheet_every == 0 && sent_sheet < sheet_max;
-                sent_sheet += usize::from(keep);
-                let iris = if want_iris && tracked.success {
-                    setup
-                        .iris
-                        .estimate_into(&frame.gray, &tracked.landmarks, &mut iris_ws, &mut iris_frame)
-                        .ok()
-                        .map(|_| iris_frame)
-                } else {
-                    None
-                };
-                let msg = Tracked {
-                    index: frame.index,
-                    timestamp: frame.timestamp_s,
-                    landmarks: tracked.success.then(|| tracked.landmarks.clone()),
-                    confidence: tracked.confidence,
-                    iris,
-                    gray: keep.then(|| frame.gray.clone()),
-                };
-                if track_tx.send(msg).is_err() {
-                    // the solving stage stopped: its error is reported below
-                    break;
-                }
-                let _ = recycle_tx.send(frame);
-            }
-            Ok(busy)
-        })();
-        // closing the queue ends the solving stage
-        drop(track_tx);
-        let stage_result = worker
-            .join()
-            .unwrap_or_else(|_| Err(anyhow::anyhow!("the solving stage panicked")));
-        let decode_result = decoder
-            .join()
-            .unwrap_or_else(|_| Err(anyhow::anyhow!("the decoding stage panicked")));
-        (decode_result, track_result, stage_result)
-    });
-    // the tracking error (e.g. an interrupt) first, then the others
-    timings.track = track_result?;
-    let collected = stage_result?;
-    // a decoding error (a corrupt or truncated video) ends the capture before any
-    // calibration work
-    timings.decode = decode_result?;
-    let mut neutral_report = serde_json::Value::Null;
-    if calibrate {
-        let tracked_frames: Vec<(u64, Landmarks68)> = collected
-            .iter()
-            .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
-            .collect();
-        let cal = match (setup.neutral, setup.method) {
-            (crate::neutral::NeutralChoice::Auto, Method::Exact3d) => crate::neutral::calibrate_subject(
-                &setup.rig,
-                camera,
-                setup.objective,
-                priors
-                    .as_ref()
-                    .unwrap_or(&facecap_solve::ShapePriors::neutral(setup.rig.num_shapes())),
-                &tracked_frames,
-            )?,
-            _ => crate::neutral::calibrate(setup.neutral, &solver, &setup.rig, camera, &tracked_frames)?,
-        };
-        neutral_report = cal.report;
-        let irises: Vec<facecap_landmarks::gaze::IrisFrame> = collected.iter().filter_map(|t| t.iris).collect();
-        stage.gaze_rest = facecap_landmarks::gaze::GazeRest::median_of(&irises);
-        stage.gaze_rest_from_clip = stage.gaze_rest.is_some();
-        let calibrated = with_priors(AnySolver::new(setup.method, &cal.rig, camera, setup.objective)?)?;
-        stage.run(&calibrated, collected)?;
-    }
-    let SolveStage {
-        bar,
-        sheet,
-        frames,
-        faces_found,
-        timings: stage_timings,
-        ..
-    } = stage;
-    timings.solve = stage_timings.solve;
-    timings.muscles = stage_timings.muscles;
-    timings.tensor = stage_timings.tensor;
     bar.finish();
-    if frames.is_empty() {
+    if run.frames == 0 {
         anyhow::bail!("{}: no frames decoded", video.display());
     }
     let t = Instant::now();
-    lm_csv.finish()?;
-    pose_csv.finish()?;
-    w_csv.finish()?;
-    if let Some(m) = muscle_run {
+    landmarks.finish()?;
+    let result = solve.finish()?;
+    for (frame, e) in &result.failures {
+        progress.line(&format!("{}: frame {frame}: solver failed: {e}", video.display()));
+    }
+    if let Some(m) = muscles {
         m.finish()?;
     }
-    if let Some(tr) = tensor_run {
+    if let Some(tr) = tensor {
         tr.finish()?;
     }
-    let livelink = crate::livelink::write_if_arkit(
-        &out_dir.join("livelink.csv"),
-        &names,
-        &frames_weights(&frames),
-        &frame_times(&frames),
+    let fps = if info.fps.is_finite() && info.fps > 0.0 {
+        info.fps
+    } else {
+        facecap_pipeline::livelink::FALLBACK_FPS
+    };
+    let written = facecap_pipeline::outputs::write_solve_outputs(
+        out_dir,
+        &setup.expression.rig,
+        &setup.rig_mesh,
+        &result,
+        &SolveOutputs {
+            obj: setup.obj_space,
+            still_head: args.still_head,
+            fps,
+            rig_unit_mm: facecap_pipeline::openface::RIG_UNIT_MM,
+        },
     )?;
-    write_animation(out_dir, &setup.rig_mesh, &frames)?;
-    if args.obj {
-        write_objs(out_dir, &setup.rig_mesh, &frames)?;
-    }
-    let truth = crate::truth::evaluate(video, &names, &frames_for_truth(&frames))?;
-    write_report(out_dir, video, setup, &names, &frames, &sheet, truth.as_ref())?;
-    timings.write += t.elapsed().as_secs_f64();
+    let frames = &result.frames;
+    let names = &result.names;
+    let truth = crate::truth::evaluate(video, names, &frames_for_truth(frames))?;
+    write_report(out_dir, video, setup, names, &result, truth.as_ref())?;
+    let write_seconds = t.elapsed().as_secs_f64();
     let elapsed = started.elapsed().as_secs_f64();
     let reproj: Vec<f64> = frames
         .iter()
@@ -776,59 +514,49 @@ fn capture_one(
     let summary = json!({
         "video": video.display().to_string(),
         "frames": frames.len(),
-        "faces_found": faces_found,
+        "faces_found": result.faces_found,
         "success_frames": frames.iter().filter(|f| f.success).count(),
         "width": info.width,
         "height": info.height,
         "fps": info.fps,
+        "frame_count": frames.len(),
         "codec": info.codec,
         "frames_per_second": frames.len() as f64 / elapsed.max(1e-9),
         "seconds": elapsed,
         "timings_seconds": {
-            "decode": timings.decode, "track": timings.track, "solve": timings.solve,
-            "muscles": timings.muscles, "tensor": timings.tensor, "write_outputs": timings.write,
+            "decode": run.decode_seconds, "track": run.track_seconds, "solve": run.sink_seconds("solve"),
+            "muscles": run.sink_seconds("muscles"), "tensor": run.sink_seconds("tensor"),
+            "landmarks_csv": run.sink_seconds("landmarks"), "write_outputs": write_seconds,
         },
         "mean_reprojection_px": if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 },
         "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "shapes": names,
-        "livelink_csv": livelink,
+        "livelink_csv": written.livelink,
+        "head_animated": written.head_animated,
+        "animation_fps": fps,
         "truth": truth,
-        "neutral_calibration": neutral_report,
+        "neutral_calibration": result.neutral_report,
         "settings": setup.args_echo,
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},
     });
     let text = serde_json::to_string_pretty(&summary)?;
     facecap_core::atomic::write_atomic(out_dir.join("summary.json"), |w| w.write_all(text.as_bytes()))?;
+    crate::out::verbose(&format!(
+        "{}: busy seconds: decode {:.2}, track {:.2}, sinks {}; outputs {:.2}",
+        video.display(),
+        run.decode_seconds,
+        run.track_seconds,
+        run.sink_seconds
+            .iter()
+            .map(|(n, s)| format!("{n} {s:.2}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        write_seconds
+    ));
     Ok(summary)
 }
 
-/// One `pose.csv` row: translation (model units, camera axes x right, y down, z
-/// forward) and the head rotation *relative to facing the camera* as Euler angles in
-/// radians (`R = Rz Ry Rx`; Rx pitch, Ry yaw, Rz roll), like OpenFace. The rig is +Y up,
-/// +Z out of the face, so a face looking into the camera has model-to-camera rotation
-/// `F = diag(1, -1, -1)`; the reported rotation is `R F`, which is the identity then.
-pub(crate) fn pose_row(pose: Option<&ModelToCamera>) -> [f64; 6] {
-    match pose {
-        Some(p) => {
-            let t = p.tvec();
-            let flip = nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, -1.0, -1.0));
-            let r = nalgebra::Rotation3::from_matrix_unchecked(p.0.rotation.to_rotation_matrix().matrix() * flip);
-            let (rx, ry, rz) = r.euler_angles();
-            [t.x, t.y, t.z, rx, ry, rz]
-        }
-        None => [f64::NAN; 6],
-    }
-}
-
-fn frames_weights(frames: &[FrameOut]) -> Vec<Vec<f64>> {
-    frames.iter().map(|f| f.weights.clone()).collect()
-}
-
-fn frame_times(frames: &[FrameOut]) -> Vec<f64> {
-    frames.iter().map(|f| f.timestamp).collect()
-}
-
-fn frames_for_truth(frames: &[FrameOut]) -> Vec<crate::truth::Estimate> {
+fn frames_for_truth(frames: &[SolvedFrame]) -> Vec<crate::truth::Estimate> {
     frames
         .iter()
         .map(|f| crate::truth::Estimate {
@@ -839,56 +567,20 @@ fn frames_for_truth(frames: &[FrameOut]) -> Vec<crate::truth::Estimate> {
         .collect()
 }
 
-/// Keyframe times must increase strictly: nudge repeated timestamps.
-fn keyframe_times(frames: &[FrameOut]) -> Vec<f32> {
-    let mut times: Vec<f32> = Vec::with_capacity(frames.len());
-    for f in frames {
-        let mut t = f.timestamp.max(0.0) as f32;
-        if let Some(&last) = times.last() {
-            if t <= last {
-                t = last + 1e-4;
-            }
-        }
-        times.push(t);
-    }
-    times
-}
-
-fn write_animation(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
-    let anim = MorphAnimation {
-        times_s: keyframe_times(frames),
-        weights: frames
-            .iter()
-            .map(|f| f.weights.iter().map(|&w| w as f32).collect())
-            .collect(),
-    };
-    facecap_core::gltf_io::write_glb(out_dir.join("animation.glb"), rig, Some(&anim))?;
-    Ok(())
-}
-
-fn write_objs(out_dir: &Path, rig: &MorphMesh, frames: &[FrameOut]) -> anyhow::Result<()> {
-    let dir = out_dir.join("obj");
-    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut posed = Vec::new();
-    let mut mesh = rig.base.clone();
-    for (i, f) in frames.iter().enumerate() {
-        rig.pose_into(&f.weights, &mut posed)?;
-        mesh.positions.clone_from(&posed);
-        mesh.compute_normals();
-        facecap_core::obj::write_obj(dir.join(format!("frame_{i:06}.obj")), &mesh)?;
-    }
-    Ok(())
-}
-
 fn write_report(
     out_dir: &Path,
     video: &Path,
     setup: &Setup,
     names: &[String],
-    frames: &[FrameOut],
-    sheet: &[(u64, GrayImage, FrameOut)],
+    result: &ExpressionResult,
     truth: Option<&serde_json::Value>,
 ) -> anyhow::Result<()> {
+    let frames = &result.frames;
+    let sheet: Vec<(u64, &GrayImage, &SolvedFrame)> = result
+        .sheet
+        .iter()
+        .map(|(k, g)| (frames[*k].index, g.as_ref(), &frames[*k]))
+        .collect();
     let dir = out_dir.join("report");
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     // Tiles are independent: render and encode them in parallel.
@@ -923,7 +615,7 @@ fn write_report(
         })
         .collect();
     let sheets = tiles.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
-    let times = frame_times(frames);
+    let times: Vec<f64> = frames.iter().map(|f| f.timestamp).collect();
     let mut plots = Vec::new();
     let mut svg = |file: &str, title: &str, series: Vec<(String, Vec<f64>)>| -> anyhow::Result<()> {
         let s = report::svg_line_plot(title, &times, &series, 1000, 320);
@@ -1001,7 +693,7 @@ fn write_report(
             frames.iter().filter(|f| f.success).count().to_string(),
         ),
         ("rig".to_string(), setup.rig_name.clone()),
-        ("solver".to_string(), setup.method.name().to_string()),
+        ("solver".to_string(), setup.expression.method.name().to_string()),
     ];
     if let Some(t) = truth {
         rows.push(("error against ground truth".to_string(), t.to_string()));

@@ -30,6 +30,7 @@ use serde::Serialize;
 
 /// Arguments of `facecap info`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  facecap info clip.mp4\n  facecap info --json frames_folder/")]
 pub struct Args {
     /// Video files, Y4M files, image folders or images.
     #[arg(required = true, value_name = "VIDEO")]
@@ -139,22 +140,23 @@ fn print_text(r: &InfoReport) {
         "image_folder" => "image folder",
         other => other,
     };
-    println!("file:               {}", r.path);
-    println!("source:             {source}");
-    println!("codec:              {}", r.codec);
-    println!("resolution:         {}x{}", r.width, r.height);
-    println!("fps:                {}", r.fps);
-    println!("frames decoded:     {}", r.frames_decoded);
+    outln!("file:               {}", r.path);
+    outln!("source:             {source}");
+    outln!("codec:              {}", r.codec);
+    outln!("resolution:         {}x{}", r.width, r.height);
+    outln!("fps:                {}", r.fps);
+    outln!("frames decoded:     {}", r.frames_decoded);
     if let Some(c) = r.container_frames {
-        println!("container frames:   {c}");
+        outln!("container frames:   {c}");
     }
-    println!("duration:           {:.3} s", r.duration_s);
+    outln!("duration:           {:.3} s", r.duration_s);
     if let Some(d) = r.container_duration_s {
-        println!("container duration: {d:.3} s");
+        outln!("container duration: {d:.3} s");
     }
-    println!(
+    outln!(
         "decode speed:       {:.0} frames/s ({:.2} s)",
-        r.decode_fps, r.decode_seconds
+        r.decode_fps,
+        r.decode_seconds
     );
 }
 
@@ -173,7 +175,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         let r = inspect(path, &opts)?;
         if !args.json {
             if i > 0 {
-                println!();
+                outln!();
             }
             print_text(&r);
         }
@@ -185,7 +187,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         } else {
             serde_json::to_string_pretty(&reports)?
         };
-        println!("{text}");
+        outln!("{text}");
     }
     Ok(std::process::ExitCode::SUCCESS)
 }

@@ -41,6 +41,9 @@ pub enum GreyMode {
 
 /// Arguments of `facecap landmarks`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap landmarks photo.jpg --out pts/ --draw\n  facecap landmarks clip.mp4 --out tracked/"
+)]
 pub struct Args {
     /// Input images (or one video file).
     #[arg(required = true)]
@@ -55,6 +58,9 @@ pub struct Args {
     /// Also write `<stem>_landmarks.png` with the boxes and points drawn.
     #[arg(long)]
     pub draw: bool,
+    /// Video mode: smooth landmarks with the One Euro filter (as `capture --smooth`).
+    #[arg(long)]
+    pub smooth: bool,
     /// Use this face box (dlib inclusive `left,top,right,bottom`, 0-based pixels)
     /// for every image instead of running the face detector.
     #[arg(long = "box", value_name = "L,T,R,B", value_parser = parse_box)]
@@ -82,6 +88,8 @@ pub struct VideoJob {
     pub model: Option<PathBuf>,
     /// `--upsample`.
     pub upsample: Upsample,
+    /// `--smooth` was given.
+    pub smooth: bool,
 }
 
 fn parse_box(s: &str) -> Result<Rect, String> {
@@ -128,6 +136,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             draw: args.draw,
             model: args.model.clone(),
             upsample: args.upsample,
+            smooth: args.smooth,
         };
         return run_video(&job);
     }

@@ -9,119 +9,108 @@
 //!   centre of the top-left pixel = (0, 0); `nan` where `success` is 0), written
 //!   atomically (the file appears only when the run completes);
 //! * with `--draw`, `frames/frame_NNNNNN.png`: each frame in grey with the points
-//!   (red when successful, yellow when not) and the ERT box (green).
+//!   (red, on frames with a face) and the ERT box (green).
 //!
 //! A progress bar is shown only when stderr is a terminal.
 
-use std::io::IsTerminal as _;
-use std::path::Path;
+use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
 use anyhow::Context;
-use facecap_core::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow};
-use facecap_core::landmarks::{Rect, NUM_LANDMARKS};
-use facecap_core::video::{open_source, Frame, SourceOptions};
-use facecap_landmarks::detect::FaceDetector;
-use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
-use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
+use facecap_core::landmarks::{Landmarks68, Rect};
+use facecap_pipeline::{FrameImages, LandmarkCsvSink, RunControl, Sink, TrackedFace, TrackerPolicy, VideoTracker};
 use image::{GrayImage, Rgb, RgbImage};
 
-use crate::cmd_landmarks::{resolve_model, VideoJob};
+use crate::cmd_landmarks::VideoJob;
+
+/// `--draw`: each frame in grey with the points and the box, as
+/// `frames/frame_NNNNNN.png` (a sink of the pipeline).
+struct DrawSink {
+    dir: PathBuf,
+    canvas: RgbImage,
+}
+
+impl Sink for DrawSink {
+    fn name(&self) -> &str {
+        "draw"
+    }
+
+    fn images(&self) -> FrameImages {
+        FrameImages::Every
+    }
+
+    fn frame(&mut self, face: &TrackedFace) -> facecap_pipeline::Result<()> {
+        let Some(gray) = &face.gray else { return Ok(()) };
+        draw(gray, face, &mut self.canvas);
+        let p = self.dir.join(format!("frame_{:06}.png", face.index));
+        self.canvas.save(&p).map_err(|e| facecap_pipeline::Error::Sink {
+            sink: format!("writing {}", p.display()),
+            source: Box::new(e),
+        })
+    }
+}
 
 /// Runs the video mode.
 pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
-    let model_path = resolve_model(job.model.as_deref())?;
-    let sp = ShapePredictor::from_file_cached(&model_path)
-        .map(|(sp, _)| sp)
-        .with_context(|| format!("loading {}", model_path.display()))?
-        .with_params(ErtParams {
-            output: OutputPrecision::SubPixel,
-        });
-    let det = FaceDetector::default_model()
-        .and_then(|d| d.with_upsample(job.upsample))
-        .context("loading the face detector")?;
-    // Unfiltered (the configuration checked against dlib on the shared clips); the One
-    // Euro filter (`TrackerParams::filter`) trades accuracy on fast expressions for less jitter.
-    let params = TrackerParams::default();
-    let tracker = LandmarkTracker::new(det, sp, params)?;
-    let mut ws = tracker.new_workspace();
-    let mut state = TrackerState::new();
-    let mut out = TrackedFrame::default();
-
-    let mut src = open_source(&job.input, &SourceOptions::default())
-        .with_context(|| format!("opening {}", job.input.display()))?;
+    // Unfiltered by default (the configuration checked against dlib on the shared
+    // clips); `--smooth` trades accuracy on fast expressions for less jitter.
+    let tracker = VideoTracker::new(&TrackerPolicy {
+        smooth: job.smooth,
+        shape_model: job.model.clone(),
+        upsample: job.upsample,
+    })?;
+    let source =
+        facecap_pipeline::open_video(&job.input, 1).with_context(|| format!("opening {}", job.input.display()))?;
+    let frame_count = source.info().frame_count;
     std::fs::create_dir_all(&job.out_dir).with_context(|| format!("creating {}", job.out_dir.display()))?;
-    let frames_dir = job.out_dir.join("frames");
-    if job.draw {
-        std::fs::create_dir_all(&frames_dir).with_context(|| format!("creating {}", frames_dir.display()))?;
-    }
     let csv_path = job.out_dir.join("landmarks.csv");
-    let mut csv = FrameCsvWriter::create(&csv_path, &landmark_columns())?;
-
-    let bar = if std::io::stderr().is_terminal() {
-        let b = src
-            .info()
-            .frame_count
-            .map_or_else(indicatif::ProgressBar::no_length, indicatif::ProgressBar::new);
-        if let Ok(style) = indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {per_sec} {eta}") {
-            b.set_style(style);
-        }
-        Some(b)
+    let mut csv = LandmarkCsvSink::create(&csv_path)?;
+    let mut drawer = if job.draw {
+        let dir = job.out_dir.join("frames");
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        Some(DrawSink {
+            dir,
+            canvas: RgbImage::new(0, 0),
+        })
     } else {
         None
     };
-
-    let mut frame = Frame::default();
-    let mut values = [0.0; 2 * NUM_LANDMARKS];
-    let (mut n, mut ok) = (0u64, 0u64);
-    let mut track_time = 0.0;
-    let mut canvas = RgbImage::new(0, 0);
-    while src.read_into(&mut frame)? {
-        let t0 = Instant::now();
-        tracker
-            .track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut out)
-            .with_context(|| format!("frame {}", frame.index))?;
-        track_time += t0.elapsed().as_secs_f64();
-        landmark_values(out.success.then_some(&out.landmarks), &mut values);
-        csv.write_row(&FrameRow {
-            frame: frame.index,
-            timestamp: frame.timestamp_s.max(0.0),
-            success: out.success,
-            confidence: out.confidence,
-            values: &values,
-        })?;
-        if job.draw {
-            draw(&frame.gray, &out, &mut canvas);
-            let p = frames_dir.join(format!("frame_{:06}.png", frame.index));
-            canvas.save(&p).with_context(|| format!("writing {}", p.display()))?;
+    let progress = crate::progress::Progress::new(crate::out::quiet());
+    let mut bar = progress.bar(&job.input, frame_count);
+    let report = {
+        let mut sinks: Vec<&mut dyn Sink> = vec![&mut csv];
+        if let Some(d) = drawer.as_mut() {
+            sinks.push(d);
         }
-        n += 1;
-        ok += u64::from(out.success);
-        if let Some(b) = &bar {
-            b.inc(1);
-        }
-    }
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+        let mut inc = || bar.inc();
+        tracker.run(
+            source,
+            &mut sinks,
+            &mut RunControl {
+                interrupted: None,
+                on_frame: Some(&mut inc),
+            },
+        )?
+    };
+    bar.finish();
     csv.finish()?;
-    eprintln!(
+    let (n, ok) = (report.frames, report.faces);
+    crate::out::info(&format!(
         "{}: {n} frames, face on {ok} ({:.1} %), tracker {:.0} frames/s (decode excluded); wrote {}",
         job.input.display(),
         if n > 0 { 100.0 * ok as f64 / n as f64 } else { 0.0 },
-        if track_time > 0.0 { n as f64 / track_time } else { 0.0 },
-        display_rel(&csv_path)
-    );
+        if report.track_seconds > 0.0 {
+            n as f64 / report.track_seconds
+        } else {
+            0.0
+        },
+        csv_path.display()
+    ));
     Ok(ExitCode::SUCCESS)
 }
 
-fn display_rel(p: &Path) -> String {
-    p.display().to_string()
-}
-
 /// Grey frame with the landmarks and box drawn.
-fn draw(gray: &GrayImage, f: &TrackedFrame, canvas: &mut RgbImage) {
+fn draw(gray: &GrayImage, f: &TrackedFace, canvas: &mut RgbImage) {
     let (w, h) = gray.dimensions();
     if canvas.dimensions() != (w, h) {
         *canvas = RgbImage::new(w, h);
@@ -152,13 +141,10 @@ fn draw(gray: &GrayImage, f: &TrackedFrame, canvas: &mut RgbImage) {
             put(r, y, Rgb([0, 255, 0]));
         }
     }
-    if f.confidence > 0.0 {
-        let c = if f.success {
-            Rgb([255, 0, 0])
-        } else {
-            Rgb([255, 255, 0])
-        };
-        for p in f.landmarks.points.iter() {
+    if let Some(l) = f.landmarks.as_ref() {
+        let c: Rgb<u8> = Rgb([255, 0, 0]);
+        let l: &Landmarks68 = l;
+        for p in l.points.iter() {
             let (x, y) = (p.x.round() as i64, p.y.round() as i64);
             for (dx, dy) in [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)] {
                 put(x + dx, y + dy, c);

@@ -8,8 +8,8 @@
 //!   [--muscles SET.json] --out DIR` — tracks landmarks (HOG + ERT + LK tracker), then
 //!   contractions, jaw and head pose per frame (thesis Algorithm 2), and writes in `DIR`:
 //!   `contractions.csv` (`frame,timestamp,success,confidence`, one column per muscle in
-//!   `[0, 1]`, then `jaw` in radians) and `posed.glb`, the baked rig animated with one
-//!   keyframe per frame (muscle weights = contractions, `jaw_open` weight = jaw / max angle,
+//!   `[0, 1]`, then `jaw` in radians; the same file as `capture --muscles`) and
+//!   `posed.glb`, the baked rig animated with one keyframe per frame (at `frame / fps`) (muscle weights = contractions, `jaw_open` weight = jaw / max angle,
 //!   a linearisation of the rotation). `--landmarks LANDMARKS.csv` (OpenFace-style
 //!   `x_0..x_67,y_0..y_67`, as written by `facecap landmarks`) replaces the video's landmark
 //!   tracking; then VIDEO is only used for the frame size when `--width/--height` are absent.
@@ -17,23 +17,19 @@
 //! Without `--muscles` the default 11-muscle set is placed from the mesh's landmarks. The
 //! camera is `Intrinsics::default_for_frame` (f = max(width, height)).
 
-use facecap_landmarks::detect::Upsample;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use facecap_core::camera::Intrinsics;
-use facecap_core::csv::{FrameCsvWriter, FrameRow};
 use facecap_core::gltf_io::MorphAnimation;
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_core::landmarks::Landmarks68;
 use facecap_core::mesh::MorphMesh;
 use facecap_muscle::retarget::{bake, JAW_TARGET};
 use facecap_muscle::rig::MuscleRig;
 use facecap_muscle::set::MuscleSet;
-use facecap_muscle::track::{
-    MuscleTracker, SolveMode, TrackInput, TrackModel, TrackOutput, TrackParams, TrackState, TrackWorkspace,
-};
-use nalgebra::{Point2, Point3};
+use facecap_muscle::track::SolveMode;
+use facecap_pipeline::{MuscleFrame, MuscleSetup, MuscleSink, RunControl, TrackerPolicy, VideoTracker};
+use nalgebra::Point3;
 
 /// Muscle subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -46,6 +42,9 @@ pub enum Command {
 
 /// `facecap muscle bake`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap muscle bake --mesh ict.glb --landmark-map ict_landmarks68.json --out ict_muscles.glb"
+)]
 pub struct BakeArgs {
     /// Mesh (.glb/.gltf or .obj).
     #[arg(long)]
@@ -66,6 +65,9 @@ pub struct BakeArgs {
 
 /// `facecap muscle track`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap muscle track clip.mp4 --mesh ict.glb --landmark-map ict_landmarks68.json --out muscles/ --report"
+)]
 pub struct TrackArgs {
     /// Video file (or image folder).
     pub video: PathBuf,
@@ -97,16 +99,14 @@ pub struct TrackArgs {
     /// dlib 68-point model (default: the model cache).
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Smooth landmarks with the One Euro filter (as `capture --smooth`; off by default).
+    #[arg(long)]
+    pub smooth: bool,
     /// Also write `DIR/report/`: per-muscle curves (`curves_*.svg`), the mesh posed at the
     /// rest frame and at each muscle's peak (`meshes.png`, one tile each) and `report.html`
     /// with captions. Only the model mesh is rendered, never the video frames.
     #[arg(long)]
     pub report: bool,
-    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
-    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
-    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
-    #[arg(long, value_name = "auto|N", default_value = "auto")]
-    pub upsample: Upsample,
 }
 
 /// Runs a muscle subcommand.
@@ -175,83 +175,6 @@ fn run_bake(a: BakeArgs) -> anyhow::Result<std::process::ExitCode> {
     Ok(std::process::ExitCode::SUCCESS)
 }
 
-/// Per-frame landmark source: a CSV or the video tracker.
-struct Landmarks {
-    frames: Vec<(u64, f64, Option<Landmarks68>, f64)>,
-    width: u32,
-    height: u32,
-}
-
-fn landmarks_from_csv(path: &Path, a: &TrackArgs) -> anyhow::Result<Landmarks> {
-    let recs = facecap_core::csv::read_landmarks_csv(path)?;
-    let (width, height) = match (a.width, a.height) {
-        (Some(w), Some(h)) => (w, h),
-        _ => {
-            let src = facecap_core::video::open_source(&a.video, &Default::default()).with_context(|| {
-                format!(
-                    "opening {} for the frame size (or give --width/--height)",
-                    a.video.display()
-                )
-            })?;
-            (src.info().width, src.info().height)
-        }
-    };
-    Ok(Landmarks {
-        frames: recs
-            .into_iter()
-            .map(|r| (r.frame, r.timestamp, r.landmarks.filter(|_| r.success), r.confidence))
-            .collect(),
-        width,
-        height,
-    })
-}
-
-fn landmarks_from_video(a: &TrackArgs) -> anyhow::Result<Landmarks> {
-    use facecap_core::video::{open_source, Frame, SourceOptions};
-    use facecap_landmarks::detect::FaceDetector;
-    use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
-    use facecap_landmarks::tracker::one_euro::OneEuroParams;
-    use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
-    let model_path = crate::cmd_landmarks::resolve_model(a.model.as_deref())?;
-    let sp = ShapePredictor::from_file_cached(&model_path)
-        .map(|(sp, _)| sp)
-        .with_context(|| format!("loading {}", model_path.display()))?
-        .with_params(ErtParams {
-            output: OutputPrecision::SubPixel,
-        });
-    let det = FaceDetector::default_model()
-        .and_then(|d| d.with_upsample(a.upsample))
-        .context("loading the face detector")?;
-    let tracker = LandmarkTracker::new(
-        det,
-        sp,
-        TrackerParams {
-            filter: Some(OneEuroParams::default()),
-            ..TrackerParams::default()
-        },
-    )?;
-    let mut ws = tracker.new_workspace();
-    let mut state = TrackerState::new();
-    let mut out = TrackedFrame::default();
-    let mut src =
-        open_source(&a.video, &SourceOptions::default()).with_context(|| format!("opening {}", a.video.display()))?;
-    let (width, height) = (src.info().width, src.info().height);
-    let mut frame = Frame::default();
-    let mut frames = Vec::new();
-    while src.read_into(&mut frame)? {
-        tracker
-            .track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut out)
-            .with_context(|| format!("frame {}", frame.index))?;
-        frames.push((
-            frame.index,
-            frame.timestamp_s.max(0.0),
-            out.success.then(|| out.landmarks.clone()),
-            out.confidence,
-        ));
-    }
-    Ok(Landmarks { frames, width, height })
-}
-
 fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
     let mode = match a.solver.as_str() {
         "global" => SolveMode::Global,
@@ -259,93 +182,71 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
         s => anyhow::bail!("--solver {s:?}: expected \"global\" or \"point\""),
     };
     let (mm, map, _set, rig) = load(&a.mesh, &a.landmark_map, a.muscles.as_deref())?;
-    let lms = match &a.landmarks {
-        Some(p) => landmarks_from_csv(p, &a).with_context(|| format!("reading {}", p.display()))?,
-        None => landmarks_from_video(&a)?,
-    };
-    let camera = Intrinsics::default_for_frame(lms.width, lms.height)?;
-    let model = TrackModel::from_landmarks(&rig, &map, &[], 4)?;
-    let tracker = MuscleTracker::new(
-        model.clone(),
-        camera,
-        TrackParams {
-            mode,
-            ..TrackParams::default()
-        },
-    )?;
+    let setup = MuscleSetup::from_rig(rig.clone(), &map, mode)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let mut names: Vec<String> = rig.names().to_vec();
-    names.push("jaw".into());
-    let mut csv = FrameCsvWriter::create(a.out.join("contractions.csv"), &names)?;
-    let mut ws = TrackWorkspace::new(&model);
-    let mut state = TrackState::new(&model);
-    let mut out = TrackOutput::new(&model);
-    let k = model.num_points();
-    let mut points = vec![Point2::origin(); k];
-    let mut values = vec![f64::NAN; names.len()];
-    let mut anim = MorphAnimation::default();
+    // The landmarks: a CSV replayed, or the video tracked (the pipeline's one tracker).
+    let (records, source) = match &a.landmarks {
+        Some(p) => (
+            Some(facecap_pipeline::openface::read_landmarks(p).with_context(|| format!("reading {}", p.display()))?),
+            None,
+        ),
+        None => (
+            None,
+            Some(facecap_pipeline::open_video(&a.video, 1).with_context(|| format!("opening {}", a.video.display()))?),
+        ),
+    };
+    let (width, height) = match (a.width, a.height, &source) {
+        (Some(w), Some(h), _) => (w, h),
+        (_, _, Some(src)) => (src.info().width, src.info().height),
+        _ => facecap_pipeline::tensor_fit::frame_size(&a.video).with_context(|| {
+            format!(
+                "opening {} for the frame size (or give --width/--height)",
+                a.video.display()
+            )
+        })?,
+    };
+    let camera = Intrinsics::default_for_frame(width, height)?;
+    let mut sink = MuscleSink::create(&a.out, &setup, camera)?.keep_history();
+    let report = match (records, source) {
+        (Some(r), _) => facecap_pipeline::replay(&r, &mut [&mut sink])?,
+        (None, Some(src)) => {
+            let tracker = VideoTracker::new(&TrackerPolicy {
+                smooth: a.smooth,
+                shape_model: a.model.clone(),
+                upsample: facecap_landmarks::detect::Upsample::Auto,
+            })?;
+            tracker.run(src, &mut [&mut sink], &mut RunControl::default())?
+        }
+        (None, None) => anyhow::bail!("no landmark source"),
+    };
+    let history = sink.finish()?;
+    // posed.glb: the baked rig, muscle weights = contractions, jaw_open = jaw / max angle
+    // (a linearisation of the rotation); one keyframe per frame at frame / fps.
     let baked = bake(&rig, &mm)?;
     let n_old = mm.targets.len();
     let max_jaw = rig.max_jaw();
-    let (mut n, mut ok) = (0u64, 0u64);
-    let mut last_t = -1.0f64;
-    let mut history: Vec<Solved> = Vec::new();
-    for (index, t, lm, conf) in &lms.frames {
-        values.fill(f64::NAN);
-        let mut success = false;
-        if let Some(l) = lm {
-            for (slot, i) in model.landmark_of_point().iter().enumerate() {
-                if let Some(i) = i {
-                    points[slot] = l.points[*i];
-                }
-            }
-            let input = TrackInput {
-                points: &points,
-                weights: None,
-            };
-            match tracker.solve_into(&input, &mut ws, &mut state, &mut out) {
-                Ok(rep) if rep.rms_px.is_finite() => {
-                    values[..rig.num_muscles()].copy_from_slice(&out.contractions);
-                    values[rig.num_muscles()] = out.jaw;
-                    success = true;
-                }
-                Ok(_) => {}
-                Err(e) => eprintln!("frame {index}: {e}"),
-            }
+    let fps = report
+        .info
+        .as_ref()
+        .map(|i| i.fps)
+        .filter(|f| f.is_finite() && *f > 0.0)
+        .unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS);
+    let mut anim = MorphAnimation::default();
+    for f in &history {
+        let t = facecap_pipeline::outputs::keyframe_time(f.index, fps) as f32;
+        if anim.times_s.last().is_some_and(|&l| t <= l) {
+            continue;
         }
-        if a.report {
-            history.push(Solved {
-                frame: *index,
-                t: *t,
-                success,
-                contractions: out.contractions.clone(),
-                jaw: out.jaw,
-                rotation: out.pose.0.rotation.to_rotation_matrix(),
-            });
+        let mut w = vec![0.0f32; baked.targets.len()];
+        for (i, c) in f.contractions.iter().enumerate() {
+            w[n_old + i] = *c as f32;
         }
-        csv.write_row(&FrameRow {
-            frame: *index,
-            timestamp: *t,
-            success,
-            confidence: if success { *conf } else { 0.0 },
-            values: &values,
-        })?;
-        if *t > last_t {
-            let mut w = vec![0.0f32; baked.targets.len()];
-            for (i, c) in state.contractions.iter().enumerate() {
-                w[n_old + i] = *c as f32;
-            }
-            if rig.jaw().is_some() && max_jaw > 0.0 {
-                w[n_old + rig.num_muscles()] = (state.jaw / max_jaw) as f32;
-            }
-            anim.times_s.push(*t as f32);
-            anim.weights.push(w);
-            last_t = *t;
+        if rig.jaw().is_some() && max_jaw > 0.0 {
+            w[n_old + rig.num_muscles()] = (f.jaw / max_jaw) as f32;
         }
-        n += 1;
-        ok += u64::from(success);
+        anim.times_s.push(t);
+        anim.weights.push(w);
     }
-    csv.finish()?;
     let glb = a.out.join("posed.glb");
     if !anim.times_s.is_empty() {
         facecap_core::gltf_io::write_glb(&glb, &baked, Some(&anim))
@@ -354,23 +255,15 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
     if a.report {
         write_muscle_report(&a.out.join("report"), &a.video, &rig, &mm, &map, &history)?;
     }
-    eprintln!(
-        "{}: {n} frames, contractions on {ok}; wrote {} and {}",
+    let ok = history.iter().filter(|f| f.success).count();
+    crate::out::info(&format!(
+        "{}: {} frames, contractions on {ok}; wrote {} and {}",
         a.video.display(),
+        history.len(),
         a.out.join("contractions.csv").display(),
         glb.display()
-    );
+    ));
     Ok(std::process::ExitCode::SUCCESS)
-}
-
-/// One solved frame kept for the report.
-struct Solved {
-    frame: u64,
-    t: f64,
-    success: bool,
-    contractions: Vec<f64>,
-    jaw: f64,
-    rotation: nalgebra::Rotation3<f64>,
 }
 
 /// Per-muscle curves, the mesh posed at the rest frame and at each muscle's peak, and an
@@ -381,13 +274,13 @@ fn write_muscle_report(
     rig: &MuscleRig,
     mesh: &MorphMesh,
     map: &LandmarkMap,
-    frames: &[Solved],
+    frames: &[MuscleFrame],
 ) -> anyhow::Result<()> {
     use crate::report;
     let (face_vertices, face_triangles) = face_region(rig.base(), &mesh.base.triangles, map);
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let solved: Vec<&Solved> = frames.iter().filter(|f| f.success).collect();
-    let times: Vec<f64> = frames.iter().map(|f| f.t).collect();
+    let solved: Vec<&MuscleFrame> = frames.iter().filter(|f| f.success).collect();
+    let times: Vec<f64> = frames.iter().map(|f| f.timestamp).collect();
     let m = rig.num_muscles();
     let max_jaw = rig.max_jaw();
     let series = |k: usize| -> Vec<f64> {
@@ -442,8 +335,9 @@ fn write_muscle_report(
     }
 
     // Tiles: the least active solved frame, then each muscle's and the jaw's peak frame.
-    let activity = |f: &Solved| f.contractions.iter().sum::<f64>() + if max_jaw > 0.0 { f.jaw / max_jaw } else { 0.0 };
-    let mut picks: Vec<(String, &Solved)> = Vec::new();
+    let activity =
+        |f: &MuscleFrame| f.contractions.iter().sum::<f64>() + if max_jaw > 0.0 { f.jaw / max_jaw } else { 0.0 };
+    let mut picks: Vec<(String, &MuscleFrame)> = Vec::new();
     if let Some(rest) = solved.iter().min_by(|a, b| activity(a).total_cmp(&activity(b))) {
         picks.push(("least active frame".into(), rest));
     }
@@ -452,7 +346,7 @@ fn write_muscle_report(
         if k == m && rig.jaw().is_none() {
             break;
         }
-        let value = |f: &Solved| if k < m { f.contractions[k] } else { f.jaw };
+        let value = |f: &MuscleFrame| if k < m { f.contractions[k] } else { f.jaw };
         if let Some(peak) = solved.iter().max_by(|a, b| value(a).total_cmp(&value(b))) {
             let label = if k < m { names[k].as_str() } else { "jaw" };
             picks.push((format!("peak {label} = {:.2}", value(peak)), peak));
@@ -475,8 +369,8 @@ fn write_muscle_report(
             i + 1,
             i as u32 / PER_ROW + 1,
             i as u32 % PER_ROW + 1,
-            f.frame,
-            f.t
+            f.index,
+            f.timestamp
         ));
     }
     let png = report::png_bytes_fast(&sheet)?;

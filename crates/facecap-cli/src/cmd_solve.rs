@@ -1,50 +1,54 @@
-//! `facecap solve`: blendshape weights (and head pose) from a landmarks CSV against a rig.
+//! `facecap solve`: blendshape weights and head pose from a landmarks CSV against a rig,
+//! through the same expression sink and output writers as `facecap capture`, so the
+//! files mean the same (docs/capture.md).
 //!
 //! ```text
-//! facecap solve LANDMARKS.csv --rig RIG.glb --landmark-map MAP.json [--width W --height H]
-//!     [--camera fx,fy,cx,cy] [--method exact3d|exact|bobyqa|region|pca] [--l1 1] [--temporal 0]
-//!     [--shapes NAME,NAME,...] --out DIR [--obj]
+//! facecap solve LANDMARKS.csv [--rig RIG.glb --landmark-map MAP.json] [--width W --height H]
+//!     [--camera fx,fy,cx,cy] [--method exact3d|exact|bobyqa|region|pca] [--l1 1] [--temporal 100]
+//!     [--shapes NAME,NAME,...] [--neutral auto|none|FRAME] [--fps F] [--obj]
+//!     [--obj-space camera|model] [--still-head] --out DIR
 //! ```
 //!
-//! Input: the OpenFace-style per-frame CSV our tracker writes (`frame,timestamp,success,
-//! confidence,x_0..x_67,y_0..y_67`, 0-based pixels). Rows with `success = 0` get `nan` weights
-//! and reset the warm start.
+//! Input: facecap's `landmarks.csv` (`frame,timestamp,success,confidence,x_0..x_67,y_0..y_67`,
+//! 0-based pixels) or an OpenFace 2.x FeatureExtraction CSV (columns found by name, spaces
+//! after commas allowed, extra columns ignored; OpenFace's 1-based frames become 0-based).
+//! Rows with `success = 0` get `nan` weights and reset the warm start. The solver set-up
+//! (priors, neutral calibration) is `capture`'s, with the same defaults, so `solve` on
+//! `capture`'s `landmarks.csv` reproduces its `pose.csv` and `weights.csv`.
 //!
-//! Outputs in `DIR` (each written atomically):
-//! * `weights.csv`: `frame,timestamp`, then one column per blendshape, named as in the rig;
-//! * `pose.csv` (method `exact3d`): the per-frame CSV with `pose_Tx..pose_Tz` (rig units, camera
-//!   frame) and `pose_Rx..pose_Rz` (Euler angles in radians, `R = Rz Ry Rx`);
-//! * `animation.glb`: the rig with one morph-weight keyframe per solved frame;
-//! * with `--obj`: `meshes/frame_NNNNNN.obj`, the posed mesh of every solved frame.
+//! Outputs in `DIR` (each written atomically; the same files as `capture`):
+//! `weights.csv`, `pose.csv`, `openface.csv`, `livelink.csv` (ARKit-named rigs),
+//! `animation.glb` (morph weights and head motion) and, with `--obj`, `obj/frame_NNNNNN.obj`.
 //!
-//! Camera (method `exact3d`): `--camera fx,fy,cx,cy` in pixels, else the default camera
-//! `fx = fy = max(W, H)`, principal point `((W - 1) / 2, (H - 1) / 2)` from `--width/--height`
-//! (a ~53 degree horizontal field of view for landscape frames).
-//!
-//! The landmark map is the shared JSON (`vertex_by_ibug_0based`, `vertex_by_ibug_1based`) or a
-//! plain list of 68 vertex ids (`null`/`-1` = unmapped; unmapped landmarks are ignored).
+//! Camera: `--camera fx,fy,cx,cy` in pixels, else the default camera `fx = fy = max(W, H)`,
+//! principal point `((W - 1) / 2, (H - 1) / 2)` from `--width/--height`. `exact3d` needs one;
+//! the 2D methods use it for the PnP head pose beside them (without one their pose is NaN).
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 use facecap_core::camera::Intrinsics;
-use facecap_core::csv::{read_landmarks_csv, FrameCsvWriter, FrameRow, POSE_COLUMNS};
-use facecap_core::gltf_io::{write_glb, MorphAnimation};
-use facecap_core::mesh::Mesh;
-use facecap_solve::{AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, Solution, SolveState};
+use facecap_core::landmark_map::LandmarkMap;
+use facecap_pipeline::outputs::{ObjSpace, SolveOutputs};
+use facecap_pipeline::{ExpressionSetup, ExpressionSink, FrameImages};
+use facecap_solve::{BlendshapeRig, Method, ObjectiveParams};
 
 /// Arguments of `facecap solve`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap solve out/clip/landmarks.csv --width 512 --height 512 --out solved/\n  \
+    facecap solve openface_output.csv --rig ict.glb --landmark-map ict_landmarks68.json --camera 800,800,319.5,239.5 --out solved/"
+)]
 pub struct Args {
-    /// Landmarks CSV (OpenFace style, as written by `facecap landmarks`).
+    /// Landmarks CSV (facecap's landmarks.csv or an OpenFace FeatureExtraction CSV).
     #[arg(value_name = "LANDMARKS.csv")]
     pub landmarks: PathBuf,
-    /// Rig: glTF/GLB with morph targets.
-    #[arg(long, value_name = "RIG.glb")]
-    pub rig: PathBuf,
-    /// Landmark-to-vertex map JSON (`vertex_by_ibug_0based` object or a list of 68 ids).
+    /// Rig: glTF/GLB with morph targets (default: the built-in rig, as `capture`).
+    #[arg(long, value_name = "RIG.glb", requires = "landmark_map")]
+    pub rig: Option<PathBuf>,
+    /// Landmark-to-vertex map JSON of `--rig` (`vertex_by_ibug_0based` object or a list of 68 ids).
     #[arg(long, value_name = "MAP.json")]
-    pub landmark_map: PathBuf,
+    pub landmark_map: Option<PathBuf>,
     /// Frame width in pixels (for the default camera).
     #[arg(long, requires = "height")]
     pub width: Option<u32>,
@@ -60,55 +64,69 @@ pub struct Args {
     /// L1 weight lambda (px^2 per unit weight).
     #[arg(long, default_value_t = 1.0)]
     pub l1: f64,
-    /// Temporal weight mu on ||e_t - e_{t-1}||^2 (px^2).
-    #[arg(long, default_value_t = 0.0)]
+    /// Temporal weight mu on ||e_t - e_{t-1}||^2 (px^2), as `capture --temporal`.
+    #[arg(long, default_value_t = 100.0)]
     pub temporal: f64,
+    /// Per-subject neutral calibration, as `capture --neutral`: `auto` (default), `none`
+    /// or a frame index where the face is at rest.
+    #[arg(long, default_value = "auto")]
+    pub neutral: String,
+    /// Frame rate for keyframe times and Live Link timecodes (default: from the CSV's timestamps).
+    #[arg(long)]
+    pub fps: Option<f64>,
     /// Output folder (created if missing).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
-    /// Also write one posed OBJ per frame under DIR/meshes.
+    /// Also write one mesh per frame, `DIR/obj/frame_NNNNNN.obj` (rig space; see --obj-space).
     #[arg(long)]
     pub obj: bool,
+    /// Frame of the OBJs: `model` or `camera` (posed by the head pose). Implies --obj.
+    #[arg(long, value_name = "camera|model", value_parser = ["camera", "model"])]
+    pub obj_space: Option<String>,
+    /// Keep the head still in `animation.glb`.
+    #[arg(long)]
+    pub still_head: bool,
     /// Solve for these blendshapes only (comma-separated rig names, in this order; default: all).
     #[arg(long, value_name = "NAME,NAME,...")]
     pub shapes: Option<String>,
 }
 
-fn parse_camera(text: &str) -> anyhow::Result<Intrinsics> {
-    let v: Vec<f64> = text
-        .split(',')
-        .map(|s| s.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("--camera {text:?}: expected four numbers fx,fy,cx,cy"))?;
-    if v.len() != 4 {
-        bail!("--camera {text:?}: expected four numbers fx,fy,cx,cy, got {}", v.len());
-    }
-    Ok(Intrinsics::new(v[0], v[1], v[2], v[3])?)
+/// Frame rate from the records' frame numbers and timestamps (`None` when they do not say).
+fn fps_of(records: &[facecap_core::csv::LandmarkRecord]) -> Option<f64> {
+    let (a, b) = (records.first()?, records.last()?);
+    let (df, dt) = (b.frame.checked_sub(a.frame)? as f64, b.timestamp - a.timestamp);
+    (df > 0.0 && dt > 0.0).then(|| df / dt)
 }
 
 /// Runs `facecap solve`.
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let method: Method = args.method.parse()?;
+    let neutral: crate::neutral::NeutralChoice = args.neutral.parse()?;
     let camera = match (&args.camera, args.width, args.height) {
-        (Some(c), _, _) => Some(parse_camera(c)?),
+        (Some(c), _, _) => Some(crate::cmd_capture::parse_camera(c)?),
         (None, Some(w), Some(h)) => Some(Intrinsics::default_for_frame(w, h)?),
         _ => None,
     };
-    let camera = match (method, camera) {
-        (_, Some(c)) => c,
-        (Method::Exact3d, None) => {
-            bail!("method exact3d needs a camera: pass --width W --height H (default camera) or --camera fx,fy,cx,cy, or choose --method exact")
-        }
-        // unused by the 2D methods
-        (_, None) => Intrinsics::new(1.0, 1.0, 0.0, 0.0)?,
+    if method == Method::Exact3d && camera.is_none() {
+        bail!("method exact3d needs a camera: pass --width W --height H (default camera) or --camera fx,fy,cx,cy, or choose --method exact");
+    }
+    let obj = match (&args.obj_space, args.obj) {
+        (Some(s), _) => Some(s.parse::<ObjSpace>()?),
+        (None, true) => Some(ObjSpace::Model),
+        (None, false) => None,
     };
-    let rig = BlendshapeRig::from_gltf(&args.rig, &args.landmark_map).with_context(|| {
-        format!(
-            "loading rig {} with map {}",
-            args.rig.display(),
-            args.landmark_map.display()
-        )
-    })?;
+    let (mesh, map, name) = match (&args.rig, &args.landmark_map) {
+        (Some(r), Some(m)) => (
+            facecap_core::gltf_io::read_morph_mesh(r).with_context(|| format!("loading rig {}", r.display()))?,
+            LandmarkMap::from_json_file(m)?,
+            r.display().to_string(),
+        ),
+        _ => {
+            let (mesh, map) = crate::default_rig::default_rig()?;
+            (mesh, map, "built-in default rig".to_string())
+        }
+    };
+    let rig = BlendshapeRig::from_morph_mesh(mesh, &map, &name)?;
     let rig = match &args.shapes {
         Some(list) => {
             let names: Vec<&str> = list.split(',').map(str::trim).filter(|s| !s.is_empty()).collect();
@@ -119,137 +137,75 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         }
         None => rig,
     };
-    let records = read_landmarks_csv(&args.landmarks)?;
+    let records = facecap_pipeline::openface::read_landmarks(&args.landmarks)
+        .with_context(|| format!("reading {}", args.landmarks.display()))?;
     if records.is_empty() {
         bail!("{} has no frames", args.landmarks.display());
     }
+    let fps = match args.fps {
+        Some(f) if f.is_finite() && f > 0.0 => f,
+        Some(f) => bail!("--fps {f}: expected a finite number > 0"),
+        None => fps_of(&records).unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS),
+    };
     let objective = ObjectiveParams {
         l1: args.l1,
         temporal: args.temporal,
     };
-    let solver = AnySolver::new(method, &rig, camera, objective)?;
-    let n = solver.num_shapes();
+    objective.validate()?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let mesh_dir = args.out.join("meshes");
-    if args.obj {
-        std::fs::create_dir_all(&mesh_dir).with_context(|| format!("creating {}", mesh_dir.display()))?;
-    }
-
-    let mut ws = solver.workspace();
-    let mut state = SolveState::new(n);
-    let mut sol = Solution::new(n);
-    let mut rows: Vec<(u64, f64, Option<Vec<f64>>)> = Vec::with_capacity(records.len());
-    let mut pose_writer = if method == Method::Exact3d {
-        Some(FrameCsvWriter::create(args.out.join("pose.csv"), &POSE_COLUMNS)?)
-    } else {
-        None
+    let priors = crate::cmd_capture::rig_priors(&rig);
+    let hook = crate::cmd_capture::NeutralHook {
+        choice: neutral,
+        method,
+        objective,
+        priors: priors.clone(),
     };
-    let mut anim = MorphAnimation::default();
-    let mut posed = Vec::new();
-    let (mut solved, mut err_sum) = (0usize, 0.0f64);
-    let mut times_us: Vec<f64> = Vec::with_capacity(records.len());
-    for rec in &records {
-        let Some(lm) = rec.landmarks.as_ref().filter(|_| rec.success) else {
-            state.reset();
-            rows.push((rec.frame, rec.timestamp, None));
-            if let Some(w) = pose_writer.as_mut() {
-                w.write_row(&FrameRow {
-                    frame: rec.frame,
-                    timestamp: rec.timestamp,
-                    success: false,
-                    confidence: 0.0,
-                    values: &[f64::NAN; 6],
-                })?;
-            }
-            continue;
-        };
-        let t0 = std::time::Instant::now();
-        let report = solver
-            .solve_into(lm, &mut ws, &mut state, &mut sol)
-            .with_context(|| format!("frame {}", rec.frame))?;
-        times_us.push(t0.elapsed().as_secs_f64() * 1e6);
-        solved += 1;
-        err_sum += sol.reprojection_error(lm);
-        rows.push((rec.frame, rec.timestamp, Some(sol.weights.clone())));
-        if let (Some(w), Some(p)) = (pose_writer.as_mut(), sol.pose) {
-            let t = p.tvec();
-            let (rx, ry, rz) = p.euler_xyz();
-            w.write_row(&FrameRow {
-                frame: rec.frame,
-                timestamp: rec.timestamp,
-                success: true,
-                confidence: 1.0 / (1.0 + report.cost.max(0.0).sqrt()),
-                values: &[t.x, t.y, t.z, rx, ry, rz],
-            })?;
-        }
-        let ts = rec.timestamp as f32;
-        if anim.times_s.last().map_or(true, |&last| ts > last) {
-            anim.times_s.push(ts);
-            anim.weights.push(sol.weights.iter().map(|&v| v as f32).collect());
-        }
-        if args.obj {
-            if let Some(mesh) = rig.mesh.as_ref() {
-                mesh.pose_into(&sol.weights, &mut posed)?;
-                let m = Mesh {
-                    positions: posed.clone(),
-                    triangles: mesh.base.triangles.clone(),
-                    normals: Vec::new(),
-                    uvs: mesh.base.uvs.clone(),
-                };
-                facecap_core::obj::write_obj(mesh_dir.join(format!("frame_{:06}.obj", rec.frame)), &m)?;
-            }
-        }
+    let setup = ExpressionSetup {
+        rig,
+        method,
+        objective,
+        priors,
+    };
+    let t0 = std::time::Instant::now();
+    let mut sink = ExpressionSink::create(
+        &args.out,
+        &setup,
+        camera,
+        hook.active()
+            .then_some(&hook as &dyn facecap_pipeline::NeutralCalibration),
+        FrameImages::None,
+    )?;
+    facecap_pipeline::replay(&records, &mut [&mut sink])?;
+    let solve_seconds = t0.elapsed().as_secs_f64();
+    let result = sink.finish()?;
+    for (frame, e) in &result.failures {
+        crate::out::info(&format!("frame {frame}: solver failed: {e}"));
     }
-    if let Some(w) = pose_writer {
-        w.finish()?;
+    if let Some(mesh) = setup.rig.mesh.as_ref() {
+        facecap_pipeline::outputs::write_solve_outputs(
+            &args.out,
+            &setup.rig,
+            mesh,
+            &result,
+            &SolveOutputs {
+                obj,
+                still_head: args.still_head,
+                fps,
+                rig_unit_mm: facecap_pipeline::openface::RIG_UNIT_MM,
+            },
+        )?;
     }
-    write_weights_csv(&args.out.join("weights.csv"), solver.names(), &rows)?;
-    if let (Some(mesh), false) = (rig.mesh.as_ref(), anim.times_s.is_empty()) {
-        write_glb(args.out.join("animation.glb"), mesh, Some(&anim))?;
-    }
-    times_us.sort_by(f64::total_cmp);
-    eprintln!(
-        "solve: method {}, {} shapes, {solved}/{} frames solved, mean landmark error {:.2} px, median solve time {:.1} us/frame; wrote {}",
+    let solved: Vec<&facecap_pipeline::SolvedFrame> = result.frames.iter().filter(|f| f.success).collect();
+    let err = solved.iter().map(|f| f.reprojection_px).sum::<f64>() / solved.len().max(1) as f64;
+    crate::out::info(&format!(
+        "solve: method {}, {} shapes, {}/{} frames solved, mean landmark error {:.2} px, {:.1} us/frame; wrote {}",
         method.name(),
-        n,
+        result.names.len(),
+        solved.len(),
         records.len(),
-        if solved > 0 { err_sum / solved as f64 } else { f64::NAN },
-        times_us.get(times_us.len() / 2).copied().unwrap_or(f64::NAN),
+        err,
+        1e6 * solve_seconds / records.len() as f64,
         args.out.display()
-    );
+    ));
     Ok(std::process::ExitCode::SUCCESS)
-}
-
-/// `frame,timestamp,<names...>`; `nan` weights for unsolved frames. Atomic.
-fn write_weights_csv(
-    path: &std::path::Path,
-    names: &[String],
-    rows: &[(u64, f64, Option<Vec<f64>>)],
-) -> anyhow::Result<()> {
-    for n in names {
-        if n.contains([',', '\n', '\r', '"']) {
-            bail!("blendshape name {n:?} cannot be a CSV column name");
-        }
-    }
-    facecap_core::atomic::write_atomic(path, |w| {
-        let mut line = String::from("frame,timestamp");
-        for n in names {
-            line.push(',');
-            line.push_str(n);
-        }
-        line.push('\n');
-        w.write_all(line.as_bytes())?;
-        for (frame, ts, weights) in rows {
-            line.clear();
-            line.push_str(&format!("{frame},{ts}"));
-            match weights {
-                Some(ws) => ws.iter().for_each(|v| line.push_str(&format!(",{v}"))),
-                None => names.iter().for_each(|_| line.push_str(",nan")),
-            }
-            line.push('\n');
-            w.write_all(line.as_bytes())?;
-        }
-        Ok(())
-    })?;
-    Ok(())
 }

@@ -16,7 +16,6 @@
 //!    `R = Rz Ry Rx` in model axes, and the weights by name). `facecap capture` finds it
 //!    next to the video and reports its errors against it.
 
-use facecap_landmarks::detect::Upsample;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -32,6 +31,7 @@ use crate::default_rig::{DEFAULT_SHAPES, MEAN_FACE_68_CM};
 
 /// Arguments of `facecap synth`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  facecap synth --out demo/ --frames 90 --seed 0")]
 pub struct Args {
     /// Face photo (default: the astronaut portrait in the model cache).
     #[arg(long)]
@@ -48,11 +48,6 @@ pub struct Args {
     /// Seed of the expression phases.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
-    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
-    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
-    #[arg(long, value_name = "auto|N", default_value = "auto")]
-    pub upsample: Upsample,
 }
 
 /// File name of the default photo in the cache.
@@ -72,8 +67,8 @@ pub fn default_photo() -> Option<PathBuf> {
 }
 
 /// Finds the largest face and its 68 landmarks in a grey image.
-pub fn detect_landmarks(gray: &GrayImage, upsample: Upsample) -> anyhow::Result<Option<Landmarks68>> {
-    let detector = facecap_landmarks::detect::FaceDetector::default_model()?.with_upsample(upsample)?;
+pub fn detect_landmarks(gray: &GrayImage) -> anyhow::Result<Option<Landmarks68>> {
+    let detector = facecap_landmarks::detect::FaceDetector::default_model()?;
     let mut dws = detector.new_workspace();
     let faces = detector.detect(gray, &mut dws)?;
     let Some(face) = faces.first() else { return Ok(None) };
@@ -177,20 +172,13 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             anyhow::anyhow!("no photo given and {ASTRONAUT} is not in the cache: run scripts/setup.sh or pass --photo")
         })?,
     };
-    let paths = make_synth(&photo, &args.out, args.frames, args.fps, args.seed, args.upsample)?;
-    println!("wrote {} and {}", paths.0.display(), paths.1.display());
+    let paths = make_synth(&photo, &args.out, args.frames, args.fps, args.seed)?;
+    outln!("wrote {} and {}", paths.0.display(), paths.1.display());
     Ok(std::process::ExitCode::SUCCESS)
 }
 
 /// Makes the video and truth; returns their paths.
-pub fn make_synth(
-    photo: &Path,
-    out: &Path,
-    frames: u32,
-    fps: u32,
-    seed: u64,
-    upsample: Upsample,
-) -> anyhow::Result<(PathBuf, PathBuf)> {
+pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) -> anyhow::Result<(PathBuf, PathBuf)> {
     if !(1..=10_000).contains(&frames) {
         anyhow::bail!("--frames must be in 1..=10000, got {frames}");
     }
@@ -200,8 +188,7 @@ pub fn make_synth(
     let rgb = facecap_core::image_io::load_rgb(photo)?;
     let mut gray = GrayImage::new(rgb.width(), rgb.height());
     facecap_core::image_io::rgb_to_gray_into(&rgb, &mut gray);
-    let lms =
-        detect_landmarks(&gray, upsample)?.ok_or_else(|| anyhow::anyhow!("no face found in {}", photo.display()))?;
+    let lms = detect_landmarks(&gray)?.ok_or_else(|| anyhow::anyhow!("no face found in {}", photo.display()))?;
     let (rig, _) = crate::default_rig::default_rig()?;
     let k = Intrinsics::default_for_frame(rgb.width(), rgb.height())?;
     let neutral = rig_points(&vec![0.0; rig.targets.len()], &rig);

@@ -22,6 +22,9 @@ pub enum Command {
 
 /// Arguments of `facecap tensor build`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap tensor build --identity-rig ict_face_identity100.glb --expression-rig ict_face_arkit53.glb --out ict.fctensor"
+)]
 pub struct BuildArgs {
     /// Folder of `<identity>_<expression>.obj` meshes (identity = text before the first `_`).
     #[arg(long, conflicts_with_all = ["identity_rig", "expression_rig"])]
@@ -60,6 +63,7 @@ pub struct BuildArgs {
 
 /// Arguments of `facecap tensor generate`.
 #[derive(Debug, clap::Args)]
+#[command(after_help = "Example:\n  facecap tensor generate --model ict.fctensor --out face.obj")]
 pub struct GenerateArgs {
     /// Model file from `facecap tensor build`.
     #[arg(long)]
@@ -77,6 +81,9 @@ pub struct GenerateArgs {
 
 /// Arguments of `facecap tensor fit`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap tensor fit clip.mp4 --model ict.fctensor --landmark-map ict_landmarks68.json --out fit/"
+)]
 pub struct FitArgs {
     /// Input video (or image folder).
     pub video: PathBuf,
@@ -135,7 +142,7 @@ fn run_build(a: BuildArgs) -> anyhow::Result<std::process::ExitCode> {
     )?;
     let t2 = std::time::Instant::now();
     model.save(&a.out, a.f32)?;
-    println!(
+    outln!(
         "tensor model: {} vertices, {} identities, {} expressions; kept {} x {} modes ({:.4} / {:.4} of the energy); database {:.2} s, HOSVD {:.2} s -> {}",
         data.num_vertices(),
         data.num_identities(),
@@ -164,7 +171,7 @@ fn run_generate(a: GenerateArgs) -> anyhow::Result<std::process::ExitCode> {
     let w_id = weights_or_uniform(a.id, model.num_identities(), "id")?;
     let w_exp = weights_or_uniform(a.exp, model.num_expressions(), "exp")?;
     write_mesh(&model, &w_id, &w_exp, &a.out)?;
-    println!("wrote {}", a.out.display());
+    outln!("wrote {}", a.out.display());
     Ok(std::process::ExitCode::SUCCESS)
 }
 
@@ -197,13 +204,13 @@ fn run_fit(a: FitArgs) -> anyhow::Result<std::process::ExitCode> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let fitted = fit_video(&a.video, a.landmarks.as_deref(), &a.fit, &model)?;
     let path = a.out.join("tensor.csv");
-    write_tensor_csv(&path, &model, &fitted.records, &fitted.states, &fitted.rms_all)?;
+    write_tensor_csv(&path, &model, &fitted)?;
     write_reprojection_csv(&a.out.join("reprojection.csv"), &fitted)?;
     if a.write_landmarks {
         write_landmarks_csv(&a.out.join("landmarks.csv"), &fitted.records)?;
     }
     print_summary(&a.video, &fitted);
-    println!(
+    outln!(
         "wrote {} and {}",
         path.display(),
         a.out.join("reprojection.csv").display()

@@ -11,7 +11,7 @@
 //! * `transfer.csv`: target pose, target identity, source expression per frame;
 //! * `source_tensor.csv`, `target_tensor.csv`, `source_reprojection.csv`,
 //!   `target_reprojection.csv`: the two fits;
-//! * `obj/frame_NNNNN.obj` with `--obj`;
+//! * `obj/frame_NNNNNN.obj` with `--obj` (the one OBJ naming: 0-based frame, six digits);
 //! * 2D reanimation (thesis sec. 5.2): `reanimation/frame_NNNNN.png`, the target frames
 //!   with the source mouth region cloned in by Poisson seamless cloning
 //!   (`facecap_tensor::reanimate::clone_mouth`), placed and sized by the transferred
@@ -34,6 +34,9 @@ use crate::cmd_tensor_fit::{fit_video, print_summary, write_reprojection_csv, wr
 
 /// Arguments of `facecap transfer`.
 #[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  facecap transfer performer.mp4 target.mp4 --model ict.fctensor --landmark-map ict_landmarks68.json --out xfer/"
+)]
 pub struct TransferArgs {
     /// Source video (the performance).
     pub source: PathBuf,
@@ -91,13 +94,7 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
     let tgt = fit_video(&a.target, a.target_landmarks.as_deref(), &a.fit, &model)?;
     print_summary(&a.target, &tgt);
     for (name, f) in [("source", &src), ("target", &tgt)] {
-        write_tensor_csv(
-            &a.out.join(format!("{name}_tensor.csv")),
-            &model,
-            &f.records,
-            &f.states,
-            &f.rms_all,
-        )?;
+        write_tensor_csv(&a.out.join(format!("{name}_tensor.csv")), &model, f)?;
         write_reprojection_csv(&a.out.join(format!("{name}_reprojection.csv")), f)?;
     }
     let s_states = fill(&src.states)?;
@@ -108,8 +105,14 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
     let rig = model.expression_rig(&w_id)?;
     let mut times: Vec<f32> = Vec::with_capacity(frames.len());
     let mut weights: Vec<Vec<f32>> = Vec::with_capacity(frames.len());
+    let fps = facecap_pipeline::open_video(&a.source, 1)?.info().fps;
+    let fps = if fps.is_finite() && fps > 0.0 {
+        fps
+    } else {
+        facecap_pipeline::livelink::FALLBACK_FPS
+    };
     for (r, f) in src.records.iter().zip(&frames) {
-        let t = r.timestamp as f32;
+        let t = facecap_pipeline::outputs::keyframe_time(r.frame, fps) as f32;
         if times.last().is_some_and(|&l| t <= l) {
             continue;
         }
@@ -134,22 +137,21 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
             })
         })
         .collect();
-    write_tensor_csv(
-        &a.out.join("transfer.csv"),
-        &model,
-        &src.records,
-        &tstates,
-        &src.rms_all,
-    )?;
+    facecap_pipeline::tensor::write_tensor_csv(&a.out.join("transfer.csv"), &model, &src.records, &tstates)?;
     if a.obj {
         let dir = a.out.join("obj");
         std::fs::create_dir_all(&dir)?;
         for (i, f) in frames.iter().enumerate() {
             let pts = model.generate_points(&f.w_id, &f.w_exp)?;
-            facecap_tensor::obj::write_obj(&dir.join(format!("frame_{i:05}.obj")), &pts, &model.triangles)?;
+            let index = src.records.get(i).map_or(i as u64, |r| r.frame);
+            facecap_tensor::obj::write_obj(
+                &facecap_pipeline::outputs::obj_path(&a.out, index),
+                &pts,
+                &model.triangles,
+            )?;
         }
     }
-    println!(
+    outln!(
         "transfer: {} source frames onto the target identity -> {}",
         frames.len(),
         a.out.display()
@@ -240,7 +242,7 @@ fn reanimate(
             .with_context(|| format!("writing reanimation frame {f}"))?;
         written += 1;
     }
-    println!(
+    outln!(
         "reanimation: {written} frames ({cloned} with the source mouth cloned in) in {:.1} s -> {}",
         t0.elapsed().as_secs_f64(),
         dir.display()
@@ -270,7 +272,7 @@ fn reanimate(
         if !st.success() {
             bail!("ffmpeg failed to encode {}", video.display());
         }
-        println!("reanimation video -> {}", video.display());
+        outln!("reanimation video -> {}", video.display());
     }
     Ok(())
 }

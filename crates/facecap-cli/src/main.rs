@@ -5,7 +5,16 @@
 
 use clap::{Parser, Subcommand};
 
-mod capture_extras;
+/// `println!` that never panics on a closed stdout (see [`out`]).
+macro_rules! outln {
+    () => {
+        $crate::out::println("")
+    };
+    ($($arg:tt)*) => {
+        $crate::out::println(&format!($($arg)*))
+    };
+}
+
 mod cmd_capture;
 mod cmd_info;
 mod cmd_landmarks;
@@ -18,8 +27,8 @@ mod cmd_tensor;
 mod cmd_tensor_fit;
 mod cmd_transfer;
 mod default_rig;
-mod livelink;
 mod neutral;
+mod out;
 mod progress;
 mod report;
 mod truth;
@@ -29,6 +38,12 @@ mod warp;
 #[derive(Debug, Parser)]
 #[command(name = "facecap", version, about, long_about = None)]
 struct Cli {
+    /// No progress output (errors are still printed on stderr).
+    #[arg(short, long, global = true)]
+    quiet: bool,
+    /// More detail on stderr (per-stage notes and timings).
+    #[arg(short, long, global = true, conflicts_with = "quiet")]
+    verbose: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -59,6 +74,7 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    out::set(cli.quiet, cli.verbose);
     let result = match cli.command {
         Command::Info(a) => cmd_info::run(a),
         Command::Landmarks(a) => cmd_landmarks::run(a),
@@ -73,8 +89,25 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_text(&e));
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// An error and its causes on one line, each cause once: a cause whose text its
+/// parent's message already contains is not repeated.
+pub(crate) fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let msg = cause.to_string();
+        if text.contains(&msg) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&msg);
+    }
+    text
 }

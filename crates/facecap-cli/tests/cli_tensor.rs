@@ -278,7 +278,7 @@ fn build_generate_fit_transfer_on_synthetic_data() {
         "target_tensor.csv",
         "source_reprojection.csv",
         "target_reprojection.csv",
-        "obj/frame_00007.obj",
+        "obj/frame_000007.obj",
         "reanimation/frame_00000.png",
         "reanimation/frame_00007.png",
     ] {

@@ -28,7 +28,9 @@
 //! | animation output | `SCALAR` f32 | `keyframes * targets` weights, keyframe-major |
 //!
 //! The scene has one node holding the mesh; the animation (if given) has one
-//! `LINEAR` sampler driving the node's `weights`. Target names go to
+//! `LINEAR` sampler driving the node's `weights`, and with [`write_glb_animated`] two
+//! more driving the node's `translation` (`VEC3`) and `rotation` (`VEC4` quaternion)
+//! on the same keyframe times, plus the frame rate in `animations[0].extras.fps`. Target names go to
 //! `mesh.extras.targetNames`. Output passes the Khronos glTF validator with zero
 //! errors (`scripts/validate_gltf.sh`, exercised by `tests/mesh_io.rs`). Files are
 //! written atomically ([`crate::atomic`]).
@@ -131,6 +133,62 @@ impl MorphAnimation {
                     "animation.weights",
                     format!("keyframe {i} target {k} = {}", row[k]),
                     "finite numbers",
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Rigid motion of the mesh's node, one transform per keyframe of a [`MorphAnimation`]
+/// (the head pose): glTF `translation` and `rotation` channels beside the `weights`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NodeTrack {
+    /// Per keyframe, the node translation (glTF axes: +Y up, +Z toward the viewer).
+    pub translations: Vec<[f32; 3]>,
+    /// Per keyframe, the node rotation as a unit quaternion `[x, y, z, w]`.
+    pub rotations: Vec<[f32; 4]>,
+}
+
+/// What [`write_glb_animated`] adds to a morph-weight animation.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AnimationExtras<'a> {
+    /// Node motion (head pose); `None` keeps the node still.
+    pub node: Option<&'a NodeTrack>,
+    /// Frame rate of the source video, written to `animations[0].extras.fps` (glTF has
+    /// no frame-rate field; importers that read extras, and facecap's Blender script,
+    /// use it).
+    pub fps: Option<f64>,
+}
+
+impl NodeTrack {
+    fn validate(&self, keyframes: usize) -> Result<()> {
+        for (what, got) in [
+            ("node translations (one per keyframe)", self.translations.len()),
+            ("node rotations (one per keyframe)", self.rotations.len()),
+        ] {
+            if got != keyframes {
+                return Err(Error::DimensionMismatch {
+                    what: what.into(),
+                    expected: keyframes,
+                    got,
+                });
+            }
+        }
+        if let Some(i) = self.translations.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
+            return Err(Error::invalid(
+                "node translation",
+                format!("keyframe {i}"),
+                "finite numbers",
+            ));
+        }
+        for (i, q) in self.rotations.iter().enumerate() {
+            let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+            if !(n.is_finite() && (n - 1.0).abs() < 1e-3) {
+                return Err(Error::invalid(
+                    "node rotation",
+                    format!("keyframe {i}: |q| = {n}"),
+                    "a unit quaternion",
                 ));
             }
         }
@@ -622,6 +680,23 @@ pub fn write_glb(path: impl AsRef<Path>, mesh: &MorphMesh, animation: Option<&Mo
     write_atomic(path, |w| w.write_all(&bytes))
 }
 
+/// Writes a binary glTF file atomically with a morph-weight animation plus the node's
+/// rigid motion and the frame rate ([`AnimationExtras`]).
+///
+/// # Errors
+/// As [`write_glb`]; also when the node track does not have one finite transform (unit
+/// quaternion) per keyframe, or the frame rate is not finite and positive.
+pub fn write_glb_animated(
+    path: impl AsRef<Path>,
+    mesh: &MorphMesh,
+    animation: &MorphAnimation,
+    extras: &AnimationExtras<'_>,
+) -> Result<()> {
+    let (json, bin) = build_document_with(mesh, Some(animation), None, extras)?;
+    let bytes = glb_bytes(&json, &bin)?;
+    write_atomic(path, |w| w.write_all(&bytes))
+}
+
 /// Writes a JSON glTF (`.gltf`) file atomically with its buffer embedded as a
 /// base64 `data:` URI (a single self-contained file).
 ///
@@ -757,6 +832,15 @@ fn build_document(
     animation: Option<&MorphAnimation>,
     name: Option<&str>,
 ) -> Result<(Value, Vec<u8>)> {
+    build_document_with(mesh, animation, name, &AnimationExtras::default())
+}
+
+fn build_document_with(
+    mesh: &MorphMesh,
+    animation: Option<&MorphAnimation>,
+    name: Option<&str>,
+    extras: &AnimationExtras<'_>,
+) -> Result<(Value, Vec<u8>)> {
     mesh.validate()?;
     check_finite_attrs(mesh)?;
     let n = mesh.base.num_vertices();
@@ -775,6 +859,14 @@ fn build_document(
     }
     if let Some(anim) = animation {
         anim.validate(mesh.targets.len())?;
+        if let Some(track) = extras.node {
+            track.validate(anim.times_s.len())?;
+        }
+    }
+    if let Some(fps) = extras.fps {
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(Error::invalid("animation fps", fps, "a finite number > 0"));
+        }
     }
     let mut b = BinBuilder {
         bin: Vec::new(),
@@ -873,11 +965,38 @@ fn build_document(
             "SCALAR",
             None,
         );
-        root["animations"] = json!([{
+        let mut samplers = vec![json!({ "input": in_acc, "output": out_acc, "interpolation": "LINEAR" })];
+        let mut channels = vec![json!({ "sampler": 0, "target": { "node": 0, "path": "weights" } })];
+        if let Some(track) = extras.node {
+            let (tb, tmin, tmax) = vec3_bytes_minmax(track.translations.iter().copied());
+            let t_acc = b.push(
+                &tb,
+                None,
+                COMPONENT_F32,
+                track.translations.len(),
+                "VEC3",
+                Some((tmin, tmax)),
+            );
+            let rb: Vec<u8> = track
+                .rotations
+                .iter()
+                .flat_map(|q| q.iter().flat_map(|c| c.to_le_bytes()))
+                .collect();
+            let r_acc = b.push(&rb, None, COMPONENT_F32, track.rotations.len(), "VEC4", None);
+            samplers.push(json!({ "input": in_acc, "output": t_acc, "interpolation": "LINEAR" }));
+            samplers.push(json!({ "input": in_acc, "output": r_acc, "interpolation": "LINEAR" }));
+            channels.push(json!({ "sampler": 1, "target": { "node": 0, "path": "translation" } }));
+            channels.push(json!({ "sampler": 2, "target": { "node": 0, "path": "rotation" } }));
+        }
+        let mut animation = json!({
             "name": "morph_weights",
-            "samplers": [ { "input": in_acc, "output": out_acc, "interpolation": "LINEAR" } ],
-            "channels": [ { "sampler": 0, "target": { "node": 0, "path": "weights" } } ],
-        }]);
+            "samplers": samplers,
+            "channels": channels,
+        });
+        if let Some(fps) = extras.fps {
+            animation["extras"] = json!({ "fps": fps, "frames": anim.times_s.len() });
+        }
+        root["animations"] = json!([animation]);
     }
 
     root["accessors"] = Value::Array(b.accessors);

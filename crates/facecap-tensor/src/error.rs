@@ -59,6 +59,12 @@ pub enum Error {
         /// Actual size.
         got: usize,
     },
+    /// The caller's feature-point tracker failed (see [`crate::video_fit::FeatureTracker`]).
+    #[error("feature point tracking failed: {reason}")]
+    FeatureTracking {
+        /// Why.
+        reason: String,
+    },
     /// A numerical routine could not produce a result (degenerate input).
     #[error("numerical failure in {operation}: {reason}")]
     Numerical {

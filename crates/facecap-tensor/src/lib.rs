@@ -39,5 +39,6 @@ pub mod reanimate;
 pub mod synth;
 pub mod tensor;
 pub mod transfer;
+pub mod video_fit;
 
 pub use error::{Error, Result};

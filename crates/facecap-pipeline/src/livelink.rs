@@ -1,15 +1,27 @@
-//! Weights in the Live Link Face CSV layout (Epic Games' iPhone capture app), so
-//! existing importers read them.
+//! `livelink.csv`: weights and head rotation in the Live Link Face CSV layout (Epic
+//! Games' iPhone capture app), so existing importers read them.
 //!
 //! Header: `Timecode,BlendShapeCount,` then the 52 ARKit blendshapes in Live Link
 //! order (PascalCase), then `HeadYaw,HeadPitch,HeadRoll` and the six eye rotations:
-//! 61 values per row (`BlendShapeCount` = 61). Timecode is `HH:MM:SS:FF.mmm` at the
-//! video frame rate. Rig names map onto ARKit names case-insensitively, with `_L`/`_R`
-//! suffixes read as `Left`/`Right` (ICT style); where a rig splits an unsided ARKit
-//! shape into `_L`/`_R` halves (e.g. `browInnerUp_L`), the halves are averaged.
-//! ARKit shapes the rig lacks are written as 0. Written only when every rig shape maps.
+//! 61 values per row (`BlendShapeCount` = 61). **Timecode** is `HH:MM:SS:FF.mmm`
+//! computed from the frame index at the video's nominal frame rate (frame `i` is
+//! `FF = i mod fps` of second `i div fps`; `.mmm` is 0), so rows advance by exactly one
+//! frame. **Head rotation** in radians, from the head rotation relative to facing the
+//! camera ([`facecap_core::camera::head_rotation`]): `HeadYaw` = rotation about the
+//! vertical axis (`pose.csv`'s `pose_Ry`), `HeadPitch` = about the horizontal axis
+//! (`pose_Rx`), `HeadRoll` = about the viewing axis (`pose_Rz`); 0 on frames without a
+//! pose. The eye columns are 0 (no gaze estimate yet).
+//!
+//! Rig names map onto ARKit names case-insensitively, with `_L`/`_R` suffixes read as
+//! `Left`/`Right` (ICT style); where a rig splits an unsided ARKit shape into `_L`/`_R`
+//! halves (e.g. `browInnerUp_L`), the halves are averaged. ARKit shapes the rig lacks
+//! are written as 0. Written only when every rig shape maps.
 
 use std::path::Path;
+
+use facecap_core::camera::{pose_row, ModelToCamera};
+
+use crate::error::Result;
 
 /// The 52 ARKit blendshapes in Live Link Face order.
 pub const LIVE_LINK_SHAPES: [&str; 52] = [
@@ -112,43 +124,62 @@ pub fn mapping(names: &[String]) -> Option<Vec<(usize, f64)>> {
         .collect()
 }
 
-/// `HH:MM:SS:FF.mmm` for a time in seconds at `fps`.
-pub fn timecode(t: f64, fps: f64) -> String {
-    let t = t.max(0.0);
-    let total = t.floor() as u64;
-    let frac = t - total as f64;
-    let frames = frac * fps;
-    let ff = frames.floor() as u64;
-    let ms = ((frames - ff as f64) * 1000.0).round().min(999.0) as u64;
+/// Frames per second used when the video's rate is unknown or not positive.
+pub const FALLBACK_FPS: f64 = 30.0;
+
+/// `HH:MM:SS:FF.mmm` of frame `index` at `fps` frames per second (rounded to whole
+/// frames per second for the `FF` field, as SMPTE timecode is).
+pub fn timecode(index: u64, fps: f64) -> String {
+    let rate = if fps.is_finite() && fps > 0.0 {
+        fps.round().max(1.0) as u64
+    } else {
+        FALLBACK_FPS as u64
+    };
+    let ff = index % rate;
+    let total = index / rate;
     format!(
-        "{:02}:{:02}:{:02}:{:02}.{:03}",
+        "{:02}:{:02}:{:02}:{:02}.000",
         total / 3600,
         (total / 60) % 60,
         total % 60,
-        ff,
-        ms
+        ff
     )
+}
+
+/// `[HeadYaw, HeadPitch, HeadRoll]` of a pose (module docs); zeros without one.
+pub fn head_angles(pose: Option<&ModelToCamera>) -> [f64; 3] {
+    match pose {
+        Some(p) => {
+            let r = pose_row(Some(p));
+            [r[4], r[3], r[5]]
+        }
+        None => [0.0; 3],
+    }
+}
+
+/// One row of the file: frame index, weights in rig order, head pose.
+#[derive(Debug, Clone, Copy)]
+pub struct LiveLinkRow<'a> {
+    /// Frame index.
+    pub index: u64,
+    /// Weights in rig order.
+    pub weights: &'a [f64],
+    /// Head pose.
+    pub pose: Option<&'a ModelToCamera>,
 }
 
 /// Writes `path` when every rig name maps onto ARKit; returns the file name written,
 /// or `None` (nothing written) when the names do not map.
-pub fn write_if_arkit(
+///
+/// # Errors
+/// When the file cannot be written.
+pub fn write_if_arkit<'a>(
     path: &Path,
     names: &[String],
-    weights: &[Vec<f64>],
-    times: &[f64],
-) -> anyhow::Result<Option<String>> {
+    fps: f64,
+    rows: impl IntoIterator<Item = LiveLinkRow<'a>>,
+) -> Result<Option<String>> {
     let Some(map) = mapping(names) else { return Ok(None) };
-    let fps = if times.len() > 1 {
-        let span = times[times.len() - 1] - times[0];
-        if span > 0.0 {
-            (times.len() - 1) as f64 / span
-        } else {
-            30.0
-        }
-    } else {
-        30.0
-    };
     let mut text = String::from("Timecode,BlendShapeCount");
     for s in LIVE_LINK_SHAPES.iter().chain(LIVE_LINK_POSE.iter()) {
         text.push(',');
@@ -156,14 +187,15 @@ pub fn write_if_arkit(
     }
     text.push('\n');
     let count = LIVE_LINK_SHAPES.len() + LIVE_LINK_POSE.len();
-    for (w, &t) in weights.iter().zip(times) {
-        let mut row = [0.0f64; 52];
+    for row in rows {
+        let mut values = [0.0f64; 52];
         for (k, &(col, share)) in map.iter().enumerate() {
-            row[col] += share * w.get(k).copied().unwrap_or(0.0);
+            values[col] += share * row.weights.get(k).copied().unwrap_or(0.0);
         }
-        text.push_str(&timecode(t, fps));
+        let head = head_angles(row.pose);
+        text.push_str(&timecode(row.index, fps));
         text.push_str(&format!(",{count}"));
-        for v in row.iter().chain([0.0; 9].iter()) {
+        for v in values.iter().chain(head.iter()).chain([0.0; 6].iter()) {
             text.push_str(&format!(",{v}"));
         }
         text.push('\n');
@@ -173,11 +205,12 @@ pub fn write_if_arkit(
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
 
     #[test]
-    fn maps_ict_and_default_names() {
+    fn maps_ict_names() {
         let ict: Vec<String> = [
             "eyeBlink_L",
             "jawOpen",
@@ -193,12 +226,20 @@ mod tests {
         assert_eq!(m[1], (17, 1.0));
         assert_eq!(m[2], (43, 0.5));
         assert_eq!(m[4], (24, 1.0));
-        let names: Vec<String> = crate::default_rig::DEFAULT_SHAPES
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        assert!(mapping(&names).is_some());
         assert!(mapping(&["smileish".to_string()]).is_none());
-        assert_eq!(timecode(61.5, 30.0), "00:01:01:15.000");
+    }
+
+    #[test]
+    fn timecodes_advance_one_frame_per_index() {
+        assert_eq!(timecode(0, 30.0), "00:00:00:00.000");
+        assert_eq!(timecode(1845, 30.0), "00:01:01:15.000");
+        // 29.97 fps counts 30 frames per timecode second
+        assert_eq!(timecode(30, 29.97), "00:00:01:00.000");
+        assert_eq!(timecode(3, f64::NAN), "00:00:00:03.000");
+        // consecutive indices: strictly one frame apart, never repeated
+        let codes: Vec<String> = (0..1000).map(|i| timecode(i, 25.0)).collect();
+        for w in codes.windows(2) {
+            assert!(w[0] < w[1], "{} {}", w[0], w[1]);
+        }
     }
 }

@@ -1,0 +1,485 @@
+//! The expression solve: blendshape weights and head pose per frame, `weights.csv` and
+//! `pose.csv`, the same for `capture` (tracked video) and `solve` (a landmarks CSV).
+//!
+//! The solver set-up, including the per-subject neutral calibration, is behind one
+//! function, [`build_expression_solve`]: the sink calls it once per video (after the
+//! last frame when a calibration needs the whole clip).
+//!
+//! Head pose: `exact3d` solves it with the weights. For the 2D solvers (`exact`,
+//! `bobyqa`, `region`, `pca`), a perspective PnP pose ([`facecap_core::pnp::solve_pnp`],
+//! warm-started from the previous frame) of the rig's landmarks *posed with the solved
+//! weights* is fitted to the tracked landmarks beside them, so `pose.csv` has a pose with
+//! every solver.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use facecap_core::camera::{pose_row, Intrinsics, ModelToCamera};
+use facecap_core::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
+use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_core::pnp::{solve_pnp, PnpParams};
+use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
+use facecap_solve::{
+    AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
+};
+use image::GrayImage;
+use nalgebra::{Point2, Point3};
+
+use crate::error::{BoxError, Error, Result};
+use crate::sink::{FrameImages, Sink, TrackedFace};
+
+/// What the expression solve is built from (shared by all videos of a run).
+#[derive(Debug, Clone)]
+pub struct ExpressionSetup {
+    /// The rig at the 68 landmarks (with its mesh for meshes and glTF).
+    pub rig: BlendshapeRig,
+    /// The solver.
+    pub method: Method,
+    /// Objective weights (L1, temporal).
+    pub objective: ObjectiveParams,
+    /// Per-shape priors of the 3D solver (`None`: none).
+    pub priors: Option<ShapePriors>,
+}
+
+/// A calibrated rig and what was done (for `summary.json`).
+#[derive(Debug, Clone)]
+pub struct Calibrated {
+    /// The rig with the subject's neutral.
+    pub rig: BlendshapeRig,
+    /// JSON report of the calibration.
+    pub report: serde_json::Value,
+}
+
+/// A per-subject neutral calibration that needs every tracked frame first.
+pub trait NeutralCalibration: Send + Sync {
+    /// Calibrates `rig` on `frames` (frame index, tracked landmarks); `solver` is the
+    /// generic rig's solver, built with `camera`.
+    ///
+    /// # Errors
+    /// Whatever the calibration fails with.
+    fn calibrate(
+        &self,
+        solver: &AnySolver,
+        rig: &BlendshapeRig,
+        camera: Intrinsics,
+        frames: &[(u64, Landmarks68)],
+    ) -> std::result::Result<Calibrated, BoxError>;
+}
+
+/// A calibration hook and the clip's tracked frames (frame index, landmarks).
+pub type CalibrationInput<'a> = (&'a dyn NeutralCalibration, &'a [(u64, Landmarks68)]);
+
+/// The one place the expression solver is set up: the generic rig's solver, or, with a
+/// calibration and the clip's tracked frames, the solver of the calibrated rig.
+/// Returns the solver and the calibration's report (`null` without one).
+///
+/// # Errors
+/// Invalid solver parameters or a failed calibration.
+pub fn build_expression_solve(
+    setup: &ExpressionSetup,
+    camera: Intrinsics,
+    calibration: Option<CalibrationInput<'_>>,
+) -> Result<(AnySolver, serde_json::Value)> {
+    let with_priors = |s: AnySolver| -> Result<AnySolver> {
+        Ok(match &setup.priors {
+            Some(p) => s.with_priors(p.clone())?,
+            None => s,
+        })
+    };
+    let solver = with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?;
+    let Some((cal, frames)) = calibration else {
+        return Ok((solver, serde_json::Value::Null));
+    };
+    let c = cal
+        .calibrate(&solver, &setup.rig, camera, frames)
+        .map_err(Error::Calibration)?;
+    let calibrated = with_priors(AnySolver::new(setup.method, &c.rig, camera, setup.objective)?)?;
+    Ok((calibrated, c.report))
+}
+
+/// One solved frame (kept for the animation, meshes and the report).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SolvedFrame {
+    /// Frame index.
+    pub index: u64,
+    /// Seconds.
+    pub timestamp: f64,
+    /// Whether the weights were solved (else they repeat the previous frame's).
+    pub success: bool,
+    /// Tracking confidence.
+    pub confidence: f64,
+    /// Tracked landmarks.
+    pub landmarks: Option<Landmarks68>,
+    /// Weights (the previous solved frame's when `success` is false; zeros before any).
+    pub weights: Vec<f64>,
+    /// Head pose (model to camera), from `exact3d` or the PnP beside a 2D solver.
+    pub pose: Option<ModelToCamera>,
+    /// Mean landmark reprojection error of the solve, px.
+    pub reprojection_px: f64,
+}
+
+/// What the sink leaves when finished.
+#[derive(Debug, Clone)]
+pub struct ExpressionResult {
+    /// Blendshape names (rig order).
+    pub names: Vec<String>,
+    /// One entry per frame.
+    pub frames: Vec<SolvedFrame>,
+    /// Frames kept for a contact sheet: (index into `frames`, grey image).
+    pub sheet: Vec<(usize, Arc<GrayImage>)>,
+    /// Frames with a face.
+    pub faces_found: u64,
+    /// The calibration report (`null` without calibration).
+    pub neutral_report: serde_json::Value,
+    /// Per-frame solver failures (frame, message); those frames are written unsolved.
+    pub failures: Vec<(u64, String)>,
+}
+
+/// Solves every frame and writes `weights.csv` (`frame,timestamp,success,confidence,`
+/// then one column per rig shape) and `pose.csv` (`frame,timestamp,success,confidence,
+/// pose_Tx..pose_Rz`, [`facecap_core::camera::pose_row`]).
+pub struct ExpressionSink<'a> {
+    setup: &'a ExpressionSetup,
+    camera: Option<Intrinsics>,
+    calibration: Option<&'a dyn NeutralCalibration>,
+    sheet_policy: FrameImages,
+    solving: Option<Solving>,
+    buffered: Vec<TrackedFace>,
+    pose_csv: FrameCsvWriter,
+    w_csv: FrameCsvWriter,
+    result: ExpressionResult,
+    pnp_model: Vec<Point3<f64>>,
+    pnp_image: Vec<Point2<f64>>,
+    /// The solver's weights of the last solved frame (without the gaze shapes' values).
+    prev_solver_weights: Vec<f64>,
+    gaze: Gaze,
+    /// The rig's `eyeBlink*` shapes (see [`BLINK_GAIN`]).
+    blink_idx: Vec<usize>,
+}
+
+/// The gaze shapes (`eyeLook*`) from the iris centres against the subject's resting
+/// gaze: the solver holds them at 0 and their weights come from
+/// [`facecap_landmarks::gaze::gaze_weights`] on every solved frame with an iris estimate.
+#[derive(Debug, Clone, Default)]
+struct Gaze {
+    /// The gaze shapes' indices in the rig, in `GAZE_WEIGHT_NAMES` order.
+    idx: [Option<usize>; 8],
+    /// The subject's resting gaze (the clip median when every frame is known first).
+    rest: Option<GazeRest>,
+    /// Whether `rest` is the whole clip's median (else a running one).
+    rest_from_clip: bool,
+    /// Iris estimates so far (the running rest when frames stream).
+    seen: Vec<IrisFrame>,
+}
+
+/// Gain on the solved `eyeBlink*` weights. dlib's 68 points never close an eye: on the
+/// shared clips a visibly closed eye keeps 30-55 % of its resting eye aspect ratio (d9:
+/// 0.08-0.15 against 0.28 at rest), so the solve reaches about 0.55 of a rig's full closure
+/// there. The gain maps that to 1 (docs/expressions.md, "Eyes").
+pub const BLINK_GAIN: f64 = 1.8;
+
+/// Iris estimates kept for the running resting gaze, at most.
+const GAZE_SEEN_MAX: usize = 100_000;
+/// Frames between updates of the running resting gaze (and before the first).
+const GAZE_REST_EVERY: usize = 15;
+
+impl Gaze {
+    fn new(names: &[String]) -> Self {
+        use facecap_solve::observability::split_side;
+        let mut idx = [None; 8];
+        for (slot, want) in idx.iter_mut().zip(facecap_landmarks::gaze::GAZE_WEIGHT_NAMES) {
+            let (wb, ws) = split_side(want);
+            *slot = names.iter().position(|n| split_side(n) == (wb, ws));
+        }
+        Gaze { idx, ..Gaze::default() }
+    }
+
+    fn active(&self) -> bool {
+        self.idx.iter().any(Option::is_some)
+    }
+
+    /// Writes this frame's gaze weights into `weights`.
+    fn apply(&mut self, iris: Option<&IrisFrame>, weights: &mut [f64]) {
+        if !self.active() {
+            return;
+        }
+        let Some(iris) = iris else { return };
+        if !self.rest_from_clip && self.seen.len() < GAZE_SEEN_MAX {
+            // streaming: the running median of the frames so far stands in for the clip's
+            self.seen.push(*iris);
+            let seen = self.seen.len();
+            if seen >= GAZE_REST_EVERY && (seen % GAZE_REST_EVERY == 0 || self.rest.is_none()) {
+                self.rest = GazeRest::median_of(&self.seen);
+            }
+        }
+        let Some(rest) = self.rest else { return };
+        let g = facecap_landmarks::gaze::gaze_weights(iris, &rest, &GazeGains::default());
+        for (slot, v) in self.idx.iter().zip(g) {
+            if let Some(k) = slot {
+                weights[*k] = v;
+            }
+        }
+    }
+}
+
+impl std::fmt::Debug for ExpressionSink<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExpressionSink")
+            .field("method", &self.setup.method)
+            .field("camera", &self.camera)
+            .field("calibration", &self.calibration.is_some())
+            .field("frames", &self.result.frames.len())
+            .finish()
+    }
+}
+
+impl<'a> ExpressionSink<'a> {
+    /// Starts `weights.csv` and `pose.csv` in `out_dir`. `camera` is needed by `exact3d`
+    /// and by the PnP pose beside the 2D solvers (without one, their pose is NaN).
+    /// With `calibration`, frames are buffered and solved after the last one.
+    /// `sheet` says which frames' images to keep for a contact sheet.
+    ///
+    /// # Errors
+    /// `exact3d` without a camera, invalid solver parameters, or file creation.
+    pub fn create(
+        out_dir: &Path,
+        setup: &'a ExpressionSetup,
+        camera: Option<Intrinsics>,
+        calibration: Option<&'a dyn NeutralCalibration>,
+        sheet: FrameImages,
+    ) -> Result<Self> {
+        if setup.method == Method::Exact3d && camera.is_none() {
+            return Err(Error::invalid(
+                "camera",
+                "none",
+                "a camera for the exact3d solver (frame size or fx,fy,cx,cy)",
+            ));
+        }
+        let solving = match calibration {
+            None => Some(Solving::new(
+                build_expression_solve(setup, solver_camera(camera)?, None)?.0,
+            )),
+            Some(_) => None,
+        };
+        let names = setup.rig.names.clone();
+        Ok(ExpressionSink {
+            setup,
+            camera,
+            calibration,
+            sheet_policy: sheet,
+            solving,
+            buffered: Vec::new(),
+            pose_csv: FrameCsvWriter::create(out_dir.join("pose.csv"), &POSE_COLUMNS)?,
+            w_csv: FrameCsvWriter::create(out_dir.join("weights.csv"), &names)?,
+            result: ExpressionResult {
+                names,
+                frames: Vec::new(),
+                sheet: Vec::new(),
+                faces_found: 0,
+                neutral_report: serde_json::Value::Null,
+                failures: Vec::new(),
+            },
+            pnp_model: Vec::with_capacity(NUM_LANDMARKS),
+            pnp_image: Vec::with_capacity(NUM_LANDMARKS),
+            prev_solver_weights: vec![0.0; setup.rig.names.len()],
+            gaze: Gaze::new(&setup.rig.names),
+            blink_idx: setup
+                .rig
+                .names
+                .iter()
+                .enumerate()
+                .filter(|(_, n)| facecap_solve::observability::split_side(n).0 == "eyeBlink")
+                .map(|(k, _)| k)
+                .collect(),
+        })
+    }
+
+    /// Commits both CSVs and returns the solved frames.
+    ///
+    /// # Errors
+    /// When a file cannot be written or renamed.
+    pub fn finish(self) -> Result<ExpressionResult> {
+        self.pose_csv.finish()?;
+        self.w_csv.finish()?;
+        Ok(self.result)
+    }
+
+    fn solve_one(&mut self, sv: &mut Solving, face: &TrackedFace) -> Result<()> {
+        let Solving {
+            solver,
+            ws,
+            state,
+            solution,
+        } = sv;
+        let n = solver.num_shapes();
+        let prev_pose = self.result.frames.last().and_then(|f| f.pose);
+        let prev_weights = self.prev_solver_weights.clone();
+        let mut out = SolvedFrame {
+            index: face.index,
+            timestamp: face.timestamp,
+            success: false,
+            confidence: face.confidence,
+            landmarks: face.landmarks.clone(),
+            weights: prev_weights,
+            pose: None,
+            reprojection_px: f64::NAN,
+        };
+        if let Some(l) = &face.landmarks {
+            self.result.faces_found += 1;
+            match solver.solve_into(l, ws, state, &mut *solution) {
+                Ok(_) => {
+                    out.success = true;
+                    out.weights.copy_from_slice(&solution.weights);
+                    self.gaze.apply(face.iris.as_ref(), &mut out.weights);
+                    for &k in &self.blink_idx {
+                        out.weights[k] = (out.weights[k] * BLINK_GAIN).min(1.0);
+                    }
+                    self.prev_solver_weights.copy_from_slice(&solution.weights);
+                    out.reprojection_px = solution.reprojection_error(l);
+                    out.pose = match solution.pose {
+                        Some(p) => Some(p),
+                        None => self.pnp_pose(&solution.weights, l, prev_pose),
+                    };
+                }
+                Err(e) => {
+                    self.result.failures.push((face.index, e.to_string()));
+                    state.reset();
+                }
+            }
+        } else {
+            state.reset();
+        }
+        let pose_values = pose_row(out.pose.as_ref());
+        self.pose_csv.write_row(&FrameRow {
+            frame: face.index,
+            timestamp: face.timestamp,
+            success: out.success && out.pose.is_some(),
+            confidence: face.confidence,
+            values: &pose_values,
+        })?;
+        let nan = [f64::NAN];
+        let values: Vec<f64> = if out.success {
+            out.weights.clone()
+        } else {
+            nan.iter().copied().cycle().take(n).collect()
+        };
+        self.w_csv.write_row(&FrameRow {
+            frame: face.index,
+            timestamp: face.timestamp,
+            success: out.success,
+            confidence: face.confidence,
+            values: &values,
+        })?;
+        if let Some(g) = &face.gray {
+            self.result.sheet.push((self.result.frames.len(), g.clone()));
+        }
+        self.result.frames.push(out);
+        Ok(())
+    }
+
+    /// PnP pose of the rig's landmarks posed with `weights` (2D solvers).
+    fn pnp_pose(&mut self, weights: &[f64], l: &Landmarks68, prev: Option<ModelToCamera>) -> Option<ModelToCamera> {
+        let camera = self.camera?;
+        let rig = &self.setup.rig;
+        self.pnp_model.clear();
+        self.pnp_image.clear();
+        for i in 0..NUM_LANDMARKS {
+            if !rig.mapped[i] {
+                continue;
+            }
+            let mut p = [rig.neutral[[i, 0]], rig.neutral[[i, 1]], rig.neutral[[i, 2]]];
+            for (k, w) in weights.iter().enumerate() {
+                for (c, v) in p.iter_mut().enumerate() {
+                    *v += w * rig.deltas[[k, i, c]];
+                }
+            }
+            self.pnp_model.push(Point3::new(p[0], p[1], p[2]));
+            self.pnp_image.push(l.points[i]);
+        }
+        solve_pnp(&self.pnp_model, &self.pnp_image, &camera, prev, &PnpParams::default())
+            .ok()
+            .map(|(p, _)| p)
+    }
+}
+
+/// A solver with its workspace and warm-start state.
+#[derive(Debug)]
+struct Solving {
+    solver: AnySolver,
+    ws: <AnySolver as ExpressionSolver>::Workspace,
+    state: SolveState,
+    solution: Solution,
+}
+
+impl Solving {
+    fn new(solver: AnySolver) -> Self {
+        let n = solver.num_shapes();
+        Solving {
+            ws: solver.workspace(),
+            state: SolveState::new(n),
+            solution: Solution::new(n),
+            solver,
+        }
+    }
+}
+
+/// The camera handed to the solver: the real one, or (2D solvers only, which do not
+/// use it) a unit camera.
+fn solver_camera(camera: Option<Intrinsics>) -> Result<Intrinsics> {
+    match camera {
+        Some(c) => Ok(c),
+        None => Ok(Intrinsics::new(1.0, 1.0, 0.0, 0.0)?),
+    }
+}
+
+impl Sink for ExpressionSink<'_> {
+    fn name(&self) -> &str {
+        "solve"
+    }
+
+    fn images(&self) -> FrameImages {
+        self.sheet_policy
+    }
+
+    fn wants_iris(&self) -> bool {
+        self.gaze.active()
+    }
+
+    fn frame(&mut self, face: &TrackedFace) -> Result<()> {
+        match self.solving.take() {
+            Some(mut sv) => {
+                let r = self.solve_one(&mut sv, face);
+                self.solving = Some(sv);
+                r
+            }
+            None => {
+                self.buffered.push(face.clone());
+                Ok(())
+            }
+        }
+    }
+
+    fn end(&mut self) -> Result<()> {
+        let Some(cal) = self.calibration else { return Ok(()) };
+        if self.solving.is_some() {
+            return Ok(());
+        }
+        let tracked: Vec<(u64, Landmarks68)> = self
+            .buffered
+            .iter()
+            .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
+            .collect();
+        let (solver, report) = build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
+        self.result.neutral_report = report;
+        let irises: Vec<IrisFrame> = self.buffered.iter().filter_map(|t| t.iris).collect();
+        self.gaze.rest = GazeRest::median_of(&irises);
+        self.gaze.rest_from_clip = self.gaze.rest.is_some();
+        let faces = std::mem::take(&mut self.buffered);
+        let mut sv = Solving::new(solver);
+        for face in &faces {
+            self.solve_one(&mut sv, face)?;
+        }
+        self.solving = Some(sv);
+        Ok(())
+    }
+}
