@@ -157,15 +157,7 @@ pub fn calibrate_subject(
     frames: &[(u64, Landmarks68)],
 ) -> anyhow::Result<Calibrated> {
     let lms: Vec<Landmarks68> = frames.iter().map(|(_, l)| l.clone()).collect();
-    let env = |k: &str, d: f64| std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d);
-    let d = facecap_solve::SubjectParams::default();
-    let params = facecap_solve::SubjectParams {
-        rest_fraction: env("TUNE_REST", d.rest_fraction),
-        alpha_xy: env("TUNE_AXY", d.alpha_xy),
-        alpha_z: env("TUNE_AZ", d.alpha_z),
-        iterations: env("TUNE_IT", d.iterations as f64) as usize,
-        ..d
-    };
+    let params = facecap_solve::SubjectParams::default();
     let fit = facecap_solve::fit_subject(rig, camera, objective, priors, &lms, &params)
         .map_err(|e| anyhow::anyhow!("fitting the subject's neutral: {e}"))?;
     Ok(Calibrated {

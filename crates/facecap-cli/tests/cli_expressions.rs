@@ -32,18 +32,6 @@ fn models_present() -> bool {
     models.join("shape_predictor_68_face_landmarks.dat").is_file()
 }
 
-/// `eyeBlinkLeft` / `eyeBlink_L` -> `eyeBlink`; `mouthLeft`, `jawRight` kept.
-fn base(name: &str) -> String {
-    for s in ["Left", "Right", "_L", "_R"] {
-        if let Some(b) = name.strip_suffix(s) {
-            if !b.is_empty() && b != "mouth" && b != "jaw" {
-                return b.to_string();
-            }
-        }
-    }
-    name.to_string()
-}
-
 /// Per base name, the per-frame mean of its sided curves (NaN where a frame failed).
 fn curves(path: &Path, first: usize) -> BTreeMap<String, Vec<f64>> {
     let text = std::fs::read_to_string(path).unwrap();
@@ -59,7 +47,10 @@ fn curves(path: &Path, first: usize) -> BTreeMap<String, Vec<f64>> {
     let success = header.iter().position(|h| *h == "success").unwrap();
     let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
     for (i, h) in header.iter().enumerate().skip(first) {
-        groups.entry(base(h)).or_default().push(i);
+        groups
+            .entry(facecap_solve::observability::split_side(h).0.to_string())
+            .or_default()
+            .push(i);
     }
     groups
         .into_iter()
