@@ -144,6 +144,9 @@ pub struct ShapePriors {
     pub ridge: Vec<f64>,
     /// Shapes held at 0.
     pub fixed: Vec<bool>,
+    /// Multiplier of the objective's temporal weight per shape, `[0, 1e6]` (1: as given;
+    /// fast actions such as blinks take less, so the temporal term does not delay them).
+    pub temporal: Vec<f64>,
     /// Shape pairs that must not both be active.
     pub exclusive: Vec<(usize, usize)>,
     /// Weight of each landmark's squared residual, `[0, 1e6]`.
@@ -159,6 +162,7 @@ impl ShapePriors {
         ShapePriors {
             ridge: vec![0.0; n],
             fixed: vec![false; n],
+            temporal: vec![1.0; n],
             exclusive: Vec::new(),
             point_weights: [1.0; NUM_LANDMARKS],
         }
@@ -166,12 +170,15 @@ impl ShapePriors {
 
     /// Checks sizes and ranges against `n` shapes.
     pub fn validate(&self, n: usize) -> Result<()> {
-        if self.ridge.len() != n || self.fixed.len() != n {
+        if self.ridge.len() != n || self.fixed.len() != n || self.temporal.len() != n {
             return Err(Error::DimensionMismatch {
-                what: "shape priors (ridge, fixed)".into(),
+                what: "shape priors (ridge, fixed, temporal)".into(),
                 expected: n,
-                got: self.ridge.len().min(self.fixed.len()),
+                got: self.ridge.len().min(self.fixed.len()).min(self.temporal.len()),
             });
+        }
+        for &t in &self.temporal {
+            check_range("temporal", t, 0.0, 1e6)?;
         }
         for &r in &self.ridge {
             check_range("ridge", r, 0.0, 1e12)?;
@@ -356,7 +363,13 @@ impl Exact3dSolver {
         f += obj.l1 * e.iter().sum::<f64>();
         f += rho.iter().zip(e).map(|(r, x)| r * x * x).sum::<f64>();
         if let Some(p) = prev {
-            f += obj.temporal * e.iter().zip(p).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+            let t = &self.priors.temporal;
+            f += obj.temporal
+                * e.iter()
+                    .zip(p)
+                    .zip(t)
+                    .map(|((a, b), w)| w * (a - b) * (a - b))
+                    .sum::<f64>();
         }
         f
     }
@@ -627,8 +640,9 @@ impl ExpressionSolver for Exact3dSolver {
                 }
                 for kk in 0..n {
                     let i = POSE + kk;
-                    ws.h[i * cols + i] += 2.0 * mu + 2.0 * ws.rho[kk] + self.ridge;
-                    ws.g[i] += -obj.l1 + 2.0 * mu * state.weights[kk];
+                    let mu_k = mu * self.priors.temporal[kk];
+                    ws.h[i * cols + i] += 2.0 * mu_k + 2.0 * ws.rho[kk] + self.ridge;
+                    ws.g[i] += -obj.l1 + 2.0 * mu_k * state.weights[kk];
                 }
                 for a in 0..POSE {
                     ws.h[a * cols + a] += self.ridge;

@@ -18,7 +18,8 @@
 //! and ARKit's antagonist pairs (`eyeWide` vs `eyeBlink`/`eyeSquint`, `browDown` vs
 //! `browInnerUp`/`browOuterUp`, `mouthSmile` vs `mouthFrown`, `mouthPucker` vs
 //! `mouthStretch`/`mouthSmile`, `mouthFunnel` vs `mouthStretch`, `mouthLeft` vs
-//! `mouthRight`, `jawLeft` vs `jawRight`) are exclusive. `docs/expressions.md` has the table
+//! `mouthRight`, `jawLeft` vs `jawRight`) are exclusive; blinks, the fastest action, get a
+//! tenth of the temporal weight. `docs/expressions.md` has the table
 //! for the built-in rig and the ICT rig.
 
 use facecap_core::landmarks::NUM_LANDMARKS;
@@ -60,6 +61,11 @@ const UNSEEN: [(&str, &str); 4] = [
 
 /// Ridge (px^2 at IOD 100 px) of a shape with independence 1; see [`default_priors`].
 pub const BASE_RIDGE: f64 = 15.0;
+
+/// Multiplier of the temporal weight on `eyeBlink*`: a blink closes and opens within
+/// 3-6 frames at 30 fps, so the full temporal term (tuned against landmark jitter on the
+/// slower mouth and brow shapes) would delay it and cut its peak.
+pub const BLINK_TEMPORAL: f64 = 0.1;
 
 /// Exclusive pairs by ARKit base name (sided names are paired side by side).
 const EXCLUSIVE: [(&str, &str); 11] = [
@@ -208,7 +214,8 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
 
 /// The default priors of `rig` for 68-landmark input (module docs): unseen shapes fixed,
 /// ridge `BASE_RIDGE / max(independence, 0.1)^2` on the others, ARKit antagonists
-/// exclusive, every landmark weighted 1.
+/// exclusive, the temporal weight cut to [`BLINK_TEMPORAL`] on blinks, every landmark
+/// weighted 1.
 pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
     let table = analyse(rig);
     let n = rig.num_shapes();
@@ -216,6 +223,9 @@ pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
     for (k, v) in table.iter().enumerate() {
         p.fixed[k] = v.fixed_because.is_some();
         p.ridge[k] = BASE_RIDGE / v.independence.max(0.1).powi(2);
+        if split_side(&v.name).0 == "eyeBlink" {
+            p.temporal[k] = BLINK_TEMPORAL;
+        }
     }
     p.exclusive = exclusive_pairs(rig);
     p
@@ -275,6 +285,13 @@ mod tests {
         assert_eq!(p.fixed, vec![false, false, false, false, true, false]);
         assert!(p.exclusive.contains(&(1, 0)) && p.exclusive.contains(&(3, 2)));
         assert!(!p.exclusive.contains(&(1, 2)) && !p.exclusive.contains(&(3, 0)));
+        assert_eq!(p.temporal, vec![BLINK_TEMPORAL, 1.0, BLINK_TEMPORAL, 1.0, 1.0, 1.0]);
         p.validate(6).unwrap();
+        let mut short = p.clone();
+        short.temporal.pop();
+        assert!(short.validate(6).is_err());
+        let mut negative = p;
+        negative.temporal[0] = -1.0;
+        assert!(negative.validate(6).is_err());
     }
 }
