@@ -644,9 +644,10 @@ pub struct SlurmPlan {
     pub job_name: String,
     /// Where Slurm writes each task's output.
     pub log_dir: PathBuf,
-    /// The command each task runs; the shard is appended as `--shard
-    /// $SLURM_ARRAY_TASK_ID/<tasks>`.
+    /// The command each task runs; `--shard $SLURM_ARRAY_TASK_ID/<tasks>` follows it.
     pub command: Vec<String>,
+    /// Arguments after the shard (e.g. `--` and capture's options).
+    pub trailing: Vec<String>,
     /// Comment lines saying where the figures come from.
     pub notes: Vec<String>,
 }
@@ -698,10 +699,15 @@ impl SlurmPlan {
             s.push_str(&format!("# {n}\n"));
         }
         s.push_str("set -u\n");
-        let cmd: Vec<String> = self.command.iter().map(|a| sh_quote(a)).collect();
+        let words = |v: &[String]| v.iter().map(|a| sh_quote(a)).collect::<Vec<_>>().join(" ");
+        let trailing = if self.trailing.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", words(&self.trailing))
+        };
         s.push_str(&format!(
-            "exec {} --shard \"${{SLURM_ARRAY_TASK_ID}}/{}\"\n",
-            cmd.join(" "),
+            "exec {} --shard \"${{SLURM_ARRAY_TASK_ID}}/{}\"{trailing}\n",
+            words(&self.command),
             self.tasks
         ));
         s
@@ -881,6 +887,7 @@ mod tests {
                 "--out".into(),
                 "/out".into(),
             ],
+            trailing: vec!["--".into(), "--solver".into(), "exact".into()],
             notes: vec!["memory: measured".into()],
         };
         let s = plan.script();
@@ -892,7 +899,7 @@ mod tests {
             "#SBATCH --time=1:35:00\n",
             "#SBATCH --partition=short\n",
             "#SBATCH --output=/out/.batch/logs/slurm-%A_%a.out\n",
-            "exec /bin/facecap batch '/m y/list.csv' --out /out --shard \"${SLURM_ARRAY_TASK_ID}/4\"\n",
+            "exec /bin/facecap batch '/m y/list.csv' --out /out --shard \"${SLURM_ARRAY_TASK_ID}/4\" -- --solver exact\n",
         ] {
             assert!(s.contains(want), "missing {want:?} in\n{s}");
         }

@@ -64,7 +64,8 @@ pub const OUTPUT_FILES: &[&str] = &[
 ];
 
 /// Sub-folders an output folder's run owns: every file directly inside them is removed
-/// by [`clear_outputs`] (per-frame OBJs, contact-sheet images and plots).
+/// by [`clear_outputs`] (per-frame OBJs, contact-sheet images and plots), and the folder
+/// itself when nothing else is left in it.
 pub const OUTPUT_FOLDERS: &[&str] = &["obj", "report"];
 
 /// What a run should do with an output folder.
@@ -207,6 +208,8 @@ pub fn clear_outputs(out_dir: &Path) -> Result<()> {
                 remove_if_present(&entry.path())?;
             }
         }
+        // An emptied folder goes too (it fails, harmlessly, while anything is left).
+        let _ = std::fs::remove_dir(&dir);
     }
     Ok(())
 }
@@ -399,7 +402,7 @@ mod tests {
         for f in OUTPUT_FILES {
             assert!(!out.join(f).exists(), "{f} left");
         }
-        assert_eq!(std::fs::read_dir(out.join("obj")).unwrap().count(), 0);
+        assert!(!out.join("obj").exists(), "an emptied folder is removed");
         let left: Vec<_> = std::fs::read_dir(out.join("report"))
             .unwrap()
             .map(|e| e.unwrap().file_name())
