@@ -192,10 +192,12 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
 fn list_failed(statuses: &[RowStatus]) {
     let failed: Vec<&RowStatus> = statuses.iter().filter(|s| s.state == RowState::Failed).collect();
     if !failed.is_empty() {
-        eprintln!("failed rows (the next run retries them):");
-        for s in failed {
-            eprintln!("  row {}: {}: {}", s.row, s.video, s.error.as_deref().unwrap_or(""));
-        }
+        let list: Vec<String> = failed.iter().map(|s| format!("{} ({})", s.row, s.video)).collect();
+        eprintln!(
+            "failed rows, retried by the next run (errors in {}): {}",
+            batch::SUMMARY_FILE,
+            list.join(", ")
+        );
     }
 }
 
