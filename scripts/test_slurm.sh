@@ -46,6 +46,8 @@ cleanup() {
   if [ -n "${KEEP_SLURM_TEST:-}" ]; then echo "kept $T"; else rm -rf "$T"; fi
 }
 trap cleanup EXIT
+# A timeout's SIGTERM (or Ctrl-C) still stops the daemons and removes the folder.
+trap 'exit 124' TERM INT
 started=$(date +%s)
 
 # ---------------------------------------------------------------- munge

@@ -100,10 +100,10 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             }
         }
     }
-    let manifest = Manifest::read(&args.manifest)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     // Every capture option is checked once before any row runs.
     capture_args(&args, None)?;
+    let manifest = Manifest::read(&args.manifest)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     if args.merge {
         return merge(&manifest, &args.out);
     }
