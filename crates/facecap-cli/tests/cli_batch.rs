@@ -2,9 +2,9 @@
 //! Resuming and batches on small clips `facecap synth` makes: a rerun of `capture` keeps a
 //! finished folder only for the same input and settings and clears the old outputs when it
 //! redoes one; `batch` runs a manifest in two concurrent shards (one row broken), writes
-//! every row's own folder and one merged `batch_summary.csv`, skips finished rows and
-//! retries the failed one on the next run, and writes a Slurm script sized from the
-//! measured rows. (The same on a real Slurm: scripts/test_slurm.sh.)
+//! every row's own folder (the same files as `capture`) and one merged `batch_summary.csv`,
+//! skips finished rows and retries the failed one on the next run, and writes a Slurm
+//! script sized from the measured rows. (The same on a real Slurm: scripts/test_slurm.sh.)
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -206,6 +206,17 @@ fn batch_runs_two_shards_merges_once_and_retries_the_failed_row() {
         }
     }
     let failed_before = row_status(&out, "bad")["written_unix"].as_f64().unwrap();
+    // A row is the ordinary capture: the same files, byte for byte.
+    let alone = dir.path().join("alone");
+    capture(&dir.path().join("clips").join("synth.y4m"), &alone, &["--sheet-frames", "2"]);
+    let folder0 = folders.iter().find(|f| row_status(&out, f)["row"] == 0).unwrap();
+    for f in ["landmarks.csv", "pose.csv", "weights.csv", "livelink.csv", "animation.glb"] {
+        assert_eq!(
+            std::fs::read(out.join(folder0).join(f)).unwrap(),
+            std::fs::read(alone.join("synth").join(f)).unwrap(),
+            "{f} differs from capture's"
+        );
+    }
 
     // The next run: finished rows are kept, the failed one is tried again.
     let o = batch(&["--jobs", "2", "--", "--sheet-frames", "2"]).output().unwrap();
