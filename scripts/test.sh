@@ -54,7 +54,8 @@ if [ "$status" = 0 ]; then
   # (about 2 minutes here; hard limit SLURM_TEST_TIMEOUT, default 600 s; SKIP: without root).
   step "Slurm job array (scripts/test_slurm.sh)"
   set +e
-  bash scripts/test_slurm.sh </dev/null 2>&1 | tee -a "$log"
+  # The facecap binary `cargo test` just built for the CLI's integration tests (test profile).
+  bash scripts/test_slurm.sh "$ROOT/target/debug/facecap" </dev/null 2>&1 | tee -a "$log"
   status="${PIPESTATUS[0]}"
   set -e
 fi

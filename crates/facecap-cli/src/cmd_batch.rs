@@ -427,7 +427,9 @@ fn slurm(args: &Args, manifest: &Manifest) -> anyhow::Result<std::process::ExitC
             SlurmPlan::time_for(per_task, s)
         }
         (None, None) => {
-            notes.push(format!("time: no row measured, assumed {FALLBACK_ROW_SECONDS} s per video"));
+            notes.push(format!(
+                "time: no row measured, assumed {FALLBACK_ROW_SECONDS} s per video"
+            ));
             SlurmPlan::time_for(per_task, FALLBACK_ROW_SECONDS)
         }
     };

@@ -40,7 +40,14 @@ fn inputs(test: &str) -> Option<PathBuf> {
 
 fn synth(photo: &Path, out: &Path, frames: u32, fps: u32) -> PathBuf {
     let st = facecap()
-        .args(["--quiet", "synth", "--frames", &frames.to_string(), "--fps", &fps.to_string()])
+        .args([
+            "--quiet",
+            "synth",
+            "--frames",
+            &frames.to_string(),
+            "--fps",
+            &fps.to_string(),
+        ])
         .arg("--photo")
         .arg(photo)
         .arg("--out")
@@ -101,7 +108,10 @@ fn capture_redoes_a_video_only_for_another_input_or_other_settings() {
     assert_eq!(status(&capture(&video, &out, &["--solver", "exact", "--obj"])), "done");
     assert_eq!(json(&folder.join("summary.json"))["settings"]["solver"], "exact");
     // --force with a smaller sheet and no --obj: nothing of the old runs is left.
-    assert_eq!(status(&capture(&video, &out, &["--force", "--sheet-frames", "3"])), "done");
+    assert_eq!(
+        status(&capture(&video, &out, &["--force", "--sheet-frames", "3"])),
+        "done"
+    );
     assert_eq!(count(&folder.join("report"), "frame_", ".png"), 3);
     assert!(!folder.join("obj").exists(), "stale OBJs left");
     let before = json(&folder.join("summary.json"));
@@ -121,7 +131,10 @@ fn capture_redoes_a_video_only_for_another_input_or_other_settings() {
     assert_eq!(status(&capture(&video, &out, &["--sheet-frames", "3"])), "done");
     let after = json(&folder.join("summary.json"));
     assert_eq!(after["fps"], 25.0);
-    assert_eq!(before["resume"]["input"]["mtime_ns"], after["resume"]["input"]["mtime_ns"]);
+    assert_eq!(
+        before["resume"]["input"]["mtime_ns"],
+        after["resume"]["input"]["mtime_ns"]
+    );
     assert_ne!(
         before["resume"]["input"]["sha256_head_tail"],
         after["resume"]["input"]["sha256_head_tail"]
@@ -165,7 +178,11 @@ fn batch_runs_two_shards_merges_once_and_retries_the_failed_row() {
     let out = dir.path().join("runs");
     let batch = |extra: &[&str]| {
         let mut c = facecap();
-        c.args(["--quiet", "batch"]).arg(&manifest).arg("--out").arg(&out).args(extra);
+        c.args(["--quiet", "batch"])
+            .arg(&manifest)
+            .arg("--out")
+            .arg(&out)
+            .args(extra);
         c
     };
     let shards: Vec<_> = ["0/2", "1/2"]
@@ -208,9 +225,19 @@ fn batch_runs_two_shards_merges_once_and_retries_the_failed_row() {
     let failed_before = row_status(&out, "bad")["written_unix"].as_f64().unwrap();
     // A row is the ordinary capture: the same files, byte for byte.
     let alone = dir.path().join("alone");
-    capture(&dir.path().join("clips").join("synth.y4m"), &alone, &["--sheet-frames", "2"]);
+    capture(
+        &dir.path().join("clips").join("synth.y4m"),
+        &alone,
+        &["--sheet-frames", "2"],
+    );
     let folder0 = folders.iter().find(|f| row_status(&out, f)["row"] == 0).unwrap();
-    for f in ["landmarks.csv", "pose.csv", "weights.csv", "livelink.csv", "animation.glb"] {
+    for f in [
+        "landmarks.csv",
+        "pose.csv",
+        "weights.csv",
+        "livelink.csv",
+        "animation.glb",
+    ] {
         assert_eq!(
             std::fs::read(out.join(folder0).join(f)).unwrap(),
             std::fs::read(alone.join("synth").join(f)).unwrap(),
@@ -228,12 +255,11 @@ fn batch_runs_two_shards_merges_once_and_retries_the_failed_row() {
     assert_eq!(states, ["skipped", "skipped", "failed"]);
     assert!(row_status(&out, "bad")["written_unix"].as_f64().unwrap() > failed_before);
     // Other capture settings redo the rows.
-    let o = batch(&["--shard", "1/2", "--", "--sheet-frames", "3"]).output().unwrap();
-    assert!(o.status.success());
-    let folder1 = folders
-        .iter()
-        .find(|f| row_status(&out, f)["row"] == 1)
+    let o = batch(&["--shard", "1/2", "--", "--sheet-frames", "3"])
+        .output()
         .unwrap();
+    assert!(o.status.success());
+    let folder1 = folders.iter().find(|f| row_status(&out, f)["row"] == 1).unwrap();
     assert_eq!(row_status(&out, folder1)["status"], "done");
     assert_eq!(count(&out.join(folder1).join("report"), "frame_", ".png"), 3);
 

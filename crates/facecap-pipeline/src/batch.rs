@@ -138,10 +138,7 @@ impl Manifest {
                 .trim(csv::Trim::All)
                 .flexible(false)
                 .from_reader(text.as_bytes());
-            let header = reader
-                .headers()
-                .map_err(|e| err(0, format!("header: {e}")))?
-                .clone();
+            let header = reader.headers().map_err(|e| err(0, format!("header: {e}")))?.clone();
             let mut col = [None; 6];
             for (k, name) in header.iter().enumerate() {
                 let Some(c) = MANIFEST_COLUMNS.iter().position(|m| m.eq_ignore_ascii_case(name)) else {
@@ -193,7 +190,10 @@ impl Manifest {
                 .transpose()?;
             if let Some(n) = &neutral {
                 if !(n == "auto" || n == "none" || n.parse::<u64>().is_ok()) {
-                    return Err(err(line, format!("neutral {n:?}: expected auto, none or a frame index")));
+                    return Err(err(
+                        line,
+                        format!("neutral {n:?}: expected auto, none or a frame index"),
+                    ));
                 }
             }
             let key = [
@@ -716,10 +716,7 @@ impl SlurmPlan {
 
 /// One shell word: unchanged when it is plain, else in single quotes.
 pub fn sh_quote(s: &str) -> String {
-    let plain = !s.is_empty()
-        && s
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || "/._-+=:,@%".contains(c));
+    let plain = !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "/._-+=:,@%".contains(c));
     if plain {
         s.to_string()
     } else {
@@ -747,7 +744,11 @@ mod tests {
         // Two clips with one stem get two folders.
         assert!(m.rows[0].folder.starts_with("a-") && m.rows[2].folder.starts_with("a-"));
         assert_ne!(m.rows[0].folder, m.rows[2].folder);
-        assert!(m.rows[3].folder.starts_with("name__with_comma-"), "{}", m.rows[3].folder);
+        assert!(
+            m.rows[3].folder.starts_with("name__with_comma-"),
+            "{}",
+            m.rows[3].folder
+        );
     }
 
     #[test]
@@ -796,7 +797,10 @@ mod tests {
             ("# nothing\n\n", "no videos"),
         ];
         for (text, want) in cases {
-            let e = parse(text).err().unwrap_or_else(|| panic!("{text:?} must fail")).to_string();
+            let e = parse(text)
+                .err()
+                .unwrap_or_else(|| panic!("{text:?} must fail"))
+                .to_string();
             assert!(e.contains(want), "{text:?}: {e}");
         }
     }

@@ -109,11 +109,18 @@ impl Stamp {
     pub fn difference(&self, stored: &Value) -> Option<String> {
         let input = &stored["input"];
         if *input != self.input {
-            let what = ["kind", "size", "mtime_ns", "sha256_head_tail", "entries", "sha256_entries"]
-                .iter()
-                .filter(|k| input.get(**k) != self.input.get(**k))
-                .copied()
-                .collect::<Vec<_>>();
+            let what = [
+                "kind",
+                "size",
+                "mtime_ns",
+                "sha256_head_tail",
+                "entries",
+                "sha256_entries",
+            ]
+            .iter()
+            .filter(|k| input.get(**k) != self.input.get(**k))
+            .copied()
+            .collect::<Vec<_>>();
             return Some(if input.is_null() {
                 "the finished output records no input identity".to_string()
             } else {
@@ -369,7 +376,10 @@ mod tests {
         let Resume::Redo(why) = check(&out, &other) else {
             panic!("other settings must redo")
         };
-        assert!(why.contains("obj: null -> \"model\"") && why.contains("solver"), "{why}");
+        assert!(
+            why.contains("obj: null -> \"model\"") && why.contains("solver"),
+            "{why}"
+        );
         assert!(!why.contains("sheet_frames"), "{why}");
         std::fs::write(&video, b"two!").unwrap();
         let Resume::Redo(why) = check(&out, &Stamp::new(&video, stamp.settings.clone()).unwrap()) else {
