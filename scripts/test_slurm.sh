@@ -32,6 +32,8 @@ if [ -z "$FACECAP" ]; then
 fi
 [ -x "$FACECAP" ] || fail "no facecap binary at $FACECAP"
 [ "$(id -u)" = 0 ] || skip "needs root to start munged, slurmctld and slurmd"
+# The daemons live in /usr/sbin, which a non-login shell may not have on PATH.
+export PATH="$PATH:/usr/sbin:/sbin"
 for c in munged mungekey slurmctld slurmd sbatch sinfo scontrol; do
   command -v "$c" >/dev/null 2>&1 || skip "$c not installed (scripts/setup.sh installs slurm-wlm and munge)"
 done
