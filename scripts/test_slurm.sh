@@ -156,6 +156,7 @@ grep -q '^#SBATCH --array=0-2$' "$OUT/batch.sbatch" || fail "no --array=0-2 in $
 grep -q '^# memory: measured per-video peak' "$OUT/batch.sbatch" || fail "memory not from a measured peak"
 grep -E '^#SBATCH --(mem|time|cpus-per-task)=' "$OUT/batch.sbatch"
 grep -q '^job [0-9]* ended' "$T/submit.out" || fail "no job id in the output"
+JOB="$(sed -n 's/^job \([0-9]*\) ended.*/\1/p' "$T/submit.out")"
 SUMMARY="$OUT/batch_summary.csv"
 [ -f "$SUMMARY" ] || fail "no merged $SUMMARY"
 echo "--- $SUMMARY"
@@ -200,6 +201,9 @@ done
 shards="$(cat "$OUT"/*/batch_row.json | sed -n 's/.*"shard": "\(.*\)".*/\1/p' | sort | tr '\n' ' ')"
 # Row 0 was measured before the array (shard 0/1) and skipped by task 0; rows 1, 2 by tasks 1, 2.
 [ "$shards" = "0/3 1/3 2/3 " ] || fail "each row should come from its own shard, got: $shards"
+[ "$(grep -l "\"job\": \"$JOB\"" "$OUT"/*/batch_row.json | wc -l)" = 3 ] || fail "row statuses not from array job $JOB"
+# One merge by the array's last task (the measuring run wrote its summary as a single process).
+[ "$(find "$OUT/.batch" -name 'merge-*' | wc -l)" = 1 ] || fail "the array merged more than once"
 
 # ---------------------------------------------------------------- rerun: skip + retry
 set +e
@@ -211,6 +215,7 @@ set -e
 echo "--- rerun (2 tasks)"
 cat "$SUMMARY"
 check_done_rows skipped skipped
+[ "$(find "$OUT/.batch" -name 'merge-*' | wc -l)" = 2 ] || fail "the second array must merge exactly once"
 grep -q '"shard": "0/2"' "$(dirname "$(grep -l broken.mp4 "$OUT"/*/batch_row.json)")/batch_row.json" \
   || fail "the broken row was not retried by shard 0/2"
 echo "slurm batch test: passed in $(($(date +%s) - started)) s"

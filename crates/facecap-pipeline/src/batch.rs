@@ -437,6 +437,8 @@ pub struct RowStatus {
     pub pid: u32,
     /// The shard.
     pub shard: String,
+    /// The Slurm job array it ran in (`SLURM_ARRAY_JOB_ID`), if any.
+    pub job: Option<String>,
     /// Unix time of writing.
     pub written_unix: f64,
 }
@@ -456,6 +458,7 @@ impl RowStatus {
             host: host_name(),
             pid: std::process::id(),
             shard: shard.to_string(),
+            job: array_job_id(),
             written_unix: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64()),
@@ -468,7 +471,7 @@ impl RowStatus {
             "row": self.row, "video": self.video, "status": self.state.name(),
             "frames": self.frames, "faces": self.faces, "seconds": self.seconds,
             "error": self.error, "peak_rss_mb": self.peak_rss_mb, "host": self.host,
-            "pid": self.pid, "shard": self.shard, "written_unix": self.written_unix,
+            "pid": self.pid, "shard": self.shard, "job": self.job, "written_unix": self.written_unix,
         })
     }
 
@@ -486,6 +489,7 @@ impl RowStatus {
             host: v["host"].as_str().unwrap_or("").to_string(),
             pid: v["pid"].as_u64().unwrap_or(0) as u32,
             shard: v["shard"].as_str().unwrap_or("").to_string(),
+            job: v["job"].as_str().map(str::to_string),
             written_unix: v["written_unix"].as_f64().unwrap_or(0.0),
         })
     }
@@ -516,6 +520,7 @@ impl RowStatus {
             host: String::new(),
             pid: 0,
             shard: String::new(),
+            job: None,
             written_unix: 0.0,
             ..RowStatus::new(row, RowState::Missing, Shard::ALL)
         })
@@ -547,9 +552,22 @@ pub fn statuses(manifest: &Manifest, out_dir: &Path) -> Vec<RowStatus> {
     manifest.rows.iter().map(|r| RowStatus::read(out_dir, r)).collect()
 }
 
-/// Whether every row's last run finished (done, skipped or failed).
+/// Whether every row's last run finished (done, skipped or failed) and, inside a Slurm
+/// job array, finished in this array job (so a task never takes the rows of a task still
+/// queued, whose statuses are an earlier run's, for finished).
 pub fn complete(statuses: &[RowStatus]) -> bool {
-    statuses.iter().all(|s| s.state.is_final())
+    let job = array_job_id();
+    statuses
+        .iter()
+        .all(|s| s.state.is_final() && (job.is_none() || s.job == job))
+}
+
+/// `SLURM_ARRAY_JOB_ID`, when this process is a task of a Slurm job array.
+pub fn array_job_id() -> Option<String> {
+    std::env::var("SLURM_ARRAY_JOB_ID")
+        .ok()
+        .map(|v| v.trim().to_string())
+        .filter(|v| !v.is_empty())
 }
 
 /// Writes [`SUMMARY_FILE`] (one line per manifest row, [`SUMMARY_COLUMNS`]) atomically
