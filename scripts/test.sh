@@ -51,7 +51,7 @@ status="${PIPESTATUS[0]}"
 set -e
 if [ "$status" = 0 ]; then
   # `facecap batch` as a Slurm job array on a one-node cluster started on localhost
-  # (about 2 minutes here; hard limit SLURM_TEST_TIMEOUT, default 600 s; SKIP: without root).
+  # (16-70 s here; hard limit SLURM_TEST_TIMEOUT, default 600 s; SKIP: without root).
   step "Slurm job array (scripts/test_slurm.sh)"
   set +e
   # The facecap binary `cargo test` just built for the CLI's integration tests (test profile).

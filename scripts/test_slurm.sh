@@ -11,7 +11,7 @@
 # Needs root (the daemons run as root here) and Debian's slurm-wlm and munge (installed by
 # scripts/setup.sh). Where they are missing or the daemons do not come up, it prints a line
 # starting with `SKIP:` and exits 0. Bounded: every wait has a timeout, and the whole run is
-# killed after $SLURM_TEST_TIMEOUT seconds (default 600; it takes about 2 minutes here).
+# killed after $SLURM_TEST_TIMEOUT seconds (default 600; it takes 16-70 s here).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 TIMEOUT="${SLURM_TEST_TIMEOUT:-600}"
