@@ -9,7 +9,7 @@
 # skips it. Downloads come only from package registries, by package name:
 #
 #   Debian   ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm
-#            ca-certificates curl
+#            ca-certificates curl slurm-wlm munge (Slurm for the batch test, scripts/test_slurm.sh)
 #   PyPI     dlib-bin==20.0.1.post1 + numpy (venv, only to export dlib's HOG face detector)
 #            face_recognition_models==0.3.0 (sdist: dlib's 68-pt, 5-pt and MMOD models)
 #            scikit-image==0.26.0 (wheel: skimage/data/astronaut.png, NASA, public domain)
@@ -99,7 +99,9 @@ do not use it (report it)."
 }
 
 # ---------------------------------------------------------------- apt packages
-APT_PACKAGES=(ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl)
+# slurm-wlm and munge: the one-node Slurm cluster of scripts/test_slurm.sh (`facecap batch --slurm`).
+APT_PACKAGES=(ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl
+  slurm-wlm munge)
 # A package counts as present if dpkg has it or, for tools, the command exists (e.g.
 # NodeSource's nodejs ships npm, and Debian's npm package would conflict with it).
 declare -A APT_COMMAND=([ffmpeg]=ffmpeg [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl)

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite: dependencies (fast when already installed), formatting, lints,
-# unit + integration tests and doctests of every crate.
+# unit + integration tests and doctests of every crate, then `facecap batch` on a real
+# one-node Slurm cluster (scripts/test_slurm.sh).
 #
 #   bash scripts/test.sh
 #
@@ -48,6 +49,19 @@ set +e
 cargo test --workspace 2>&1 | tee "$log"
 status="${PIPESTATUS[0]}"
 set -e
+# `facecap batch` as a Slurm job array on a one-node cluster started on localhost
+# (16-70 s here; hard limit SLURM_TEST_TIMEOUT, default 600 s; SKIP: without root).
+# It uses the facecap binary `cargo test` built for the CLI's integration tests.
+step "Slurm job array (scripts/test_slurm.sh)"
+set +e
+if [ -x "$ROOT/target/debug/facecap" ]; then
+  bash scripts/test_slurm.sh "$ROOT/target/debug/facecap" </dev/null 2>&1 | tee -a "$log"
+else
+  bash scripts/test_slurm.sh </dev/null 2>&1 | tee -a "$log"
+fi
+slurm_status="${PIPESTATUS[0]}"
+set -e
+if [ "$status" = 0 ]; then status="$slurm_status"; fi
 skips="$(grep -c '^SKIP:' "$log" || true)"
 if [ "$data_present" = 0 ]; then
   echo "SKIP: shared data absent: $skips test(s) skipped their data-dependent part (see SKIP: lines above)"

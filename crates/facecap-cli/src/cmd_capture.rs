@@ -8,7 +8,10 @@
 //! `--tensor`), `openface.csv` (OpenFace 2.x layout), `animation.glb` (morph weights and head motion),
 //! `obj/frame_NNNNNN.obj` (with `--obj`), `report.html`
 //! with its images, and `summary.json`, written **last**: a folder without it is not a
-//! finished capture, and reruns skip only folders that have it (unless `--force`).
+//! finished capture. Reruns skip a finished folder only when its input (size, time and
+//! a hash of its ends) and the settings that change the outputs are the same
+//! (`facecap_pipeline::resume`); otherwise, and with `--force`, the old outputs are
+//! removed and the video is captured again.
 //! Every file is written atomically (temporary file + rename), so an interrupt or a
 //! crash never leaves a half-written file under a final name.
 
@@ -118,7 +121,7 @@ pub struct Args {
 }
 
 /// Everything shared by all videos.
-struct Setup {
+pub(crate) struct Setup {
     rig_mesh: MorphMesh,
     expression: ExpressionSetup,
     rig_name: String,
@@ -129,6 +132,9 @@ struct Setup {
     neutral: NeutralHook,
     obj_space: Option<ObjSpace>,
     args_echo: serde_json::Value,
+    /// The settings that change the outputs (with the identity of every file they
+    /// name): a finished folder is kept only when they are the same.
+    output_settings: serde_json::Value,
 }
 
 /// The neutral calibration of `crate::neutral` behind the pipeline's hook: `auto` with
@@ -193,7 +199,7 @@ pub(crate) fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
     Ok(Intrinsics::new(v[0], v[1], v[2], v[3])?)
 }
 
-fn build_setup(args: &Args) -> anyhow::Result<Setup> {
+pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     let method: Method = args.solver.parse()?;
     let neutral: crate::neutral::NeutralChoice = args.neutral.parse()?;
     if !(args.temporal.is_finite() && args.temporal >= 0.0) {
@@ -272,6 +278,20 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "neutral": args.neutral,
         "priors": "observability defaults (facecap rig)",
     });
+    let file = |p: Option<&PathBuf>| facecap_pipeline::resume::file_identity_or_null(p.map(PathBuf::as_path));
+    let output_settings = json!({
+        "capture": args_echo,
+        "sheet_frames": args.sheet_frames,
+        "upsample": args.upsample.to_string(),
+        "files": {
+            "rig": file(args.rig.as_ref()),
+            "landmark_map": file(args.landmark_map.as_ref()),
+            "muscles": file(args.muscles.as_ref().filter(|m| *m != "default").map(PathBuf::from).as_ref()),
+            "tensor": file(args.tensor.as_ref()),
+            "tensor_landmark_map": file(args.tensor_landmark_map.as_ref()),
+        },
+        "version": env!("CARGO_PKG_VERSION"),
+    });
     let priors = rig_priors(&rig);
     Ok(Setup {
         rig_mesh,
@@ -294,12 +314,13 @@ fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         },
         obj_space,
         args_echo,
+        output_settings,
     })
 }
 
 /// Outcome of one video.
 #[derive(Debug)]
-enum Outcome {
+pub(crate) enum Outcome {
     Done(serde_json::Value),
     Skipped(PathBuf),
     Failed(String),
@@ -332,19 +353,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             .par_iter()
             .map(|video| {
                 let out_dir = args.out.join(video_stem(video));
-                let outcome = if out_dir.join("summary.json").is_file() && !args.force {
-                    progress.line(&format!(
-                        "skip {} (finished capture in {}; --force redoes it)",
-                        video.display(),
-                        out_dir.display()
-                    ));
-                    Outcome::Skipped(out_dir)
-                } else {
-                    match capture_one(video, &out_dir, &args, &setup, &interrupted, &progress) {
-                        Ok(v) => Outcome::Done(v),
-                        Err(e) => Outcome::Failed(crate::error_text(&e)),
-                    }
-                };
+                let outcome = capture_video(video, &out_dir, &args, &setup, &interrupted, &progress);
                 (video.clone(), outcome)
             })
             .collect()
@@ -404,11 +413,49 @@ fn video_stem(p: &Path) -> String {
         .unwrap_or_else(|| "video".into())
 }
 
+/// Captures one video into `out_dir`, or skips it when `out_dir` holds a finished
+/// capture of the same input with the same settings (and not `--force`).
+pub(crate) fn capture_video(
+    video: &Path,
+    out_dir: &Path,
+    args: &Args,
+    setup: &Setup,
+    interrupted: &AtomicBool,
+    progress: &crate::progress::Progress,
+) -> Outcome {
+    use facecap_pipeline::resume::{check, Resume, Stamp};
+    let mut settings = setup.output_settings.clone();
+    settings["truth"] = facecap_pipeline::resume::file_identity_or_null(crate::truth::truth_path(video).as_deref());
+    let stamp = match Stamp::new(video, settings) {
+        Ok(s) => s,
+        Err(e) => return Outcome::Failed(crate::error_text(&e.into())),
+    };
+    match check(out_dir, &stamp) {
+        Resume::Finished if !args.force => {
+            progress.line(&format!(
+                "skip {} (finished capture of this input with these settings in {}; --force redoes it)",
+                video.display(),
+                out_dir.display()
+            ));
+            return Outcome::Skipped(out_dir.to_path_buf());
+        }
+        Resume::Redo(why) if !args.force => {
+            progress.line(&format!("redo {}: {why}", video.display()));
+        }
+        _ => {}
+    }
+    match capture_one(video, out_dir, args, setup, &stamp, interrupted, progress) {
+        Ok(v) => Outcome::Done(v),
+        Err(e) => Outcome::Failed(crate::error_text(&e)),
+    }
+}
+
 fn capture_one(
     video: &Path,
     out_dir: &Path,
     args: &Args,
     setup: &Setup,
+    stamp: &facecap_pipeline::resume::Stamp,
     interrupted: &AtomicBool,
     progress: &crate::progress::Progress,
 ) -> anyhow::Result<serde_json::Value> {
@@ -416,8 +463,9 @@ fn capture_one(
     let source = facecap_pipeline::open_video(video, args.decode_threads)?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    // A previous finished capture is being redone: remove its completion marker first.
-    let _ = std::fs::remove_file(out_dir.join("summary.json"));
+    // A previous capture is being redone: remove its outputs (completion marker first),
+    // so that none of them survives beside the new ones.
+    facecap_pipeline::resume::clear_outputs(out_dir)?;
     let camera = match setup.camera {
         Some(c) => c,
         None => Intrinsics::default_for_frame(info.width, info.height)?,
@@ -537,6 +585,7 @@ fn capture_one(
         "truth": truth,
         "neutral_calibration": result.neutral_report,
         "settings": setup.args_echo,
+        "resume": stamp.to_json(),
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},
     });
     let text = serde_json::to_string_pretty(&summary)?;

@@ -15,6 +15,7 @@ macro_rules! outln {
     };
 }
 
+mod cmd_batch;
 mod cmd_capture;
 mod cmd_info;
 mod cmd_landmarks;
@@ -66,6 +67,8 @@ enum Command {
     Transfer(cmd_tensor::TransferArgs),
     /// One command from video to landmarks, pose, weights, meshes and a report.
     Capture(cmd_capture::Args),
+    /// A manifest of videos captured in resumable shards, locally or as a Slurm job array.
+    Batch(cmd_batch::Args),
     /// Make a synthetic ground-truth video from a real face photo.
     Synth(cmd_synth::Args),
     /// What the 68 landmarks see of a rig's shapes, and the priors capture solves with.
@@ -83,6 +86,7 @@ fn main() -> std::process::ExitCode {
         Command::Tensor(c) => cmd_tensor::run(c),
         Command::Transfer(a) => cmd_tensor::run_transfer(a),
         Command::Capture(a) => cmd_capture::run(a),
+        Command::Batch(a) => cmd_batch::run(a),
         Command::Synth(a) => cmd_synth::run(a),
         Command::Rig(a) => cmd_rig::run(a),
     };

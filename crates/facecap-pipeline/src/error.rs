@@ -58,6 +58,16 @@ pub enum Error {
         /// Allowed range.
         expected: String,
     },
+    /// A batch manifest line is not valid.
+    #[error("{path}:{line}: {message}")]
+    Manifest {
+        /// The manifest file.
+        path: std::path::PathBuf,
+        /// 1-based line number (0: the whole file).
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
     /// A sink written by the caller failed.
     #[error("{sink}: {source}")]
     Sink {

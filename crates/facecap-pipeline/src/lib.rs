@@ -37,12 +37,14 @@
 //! # Ok::<(), facecap_pipeline::Error>(())
 //! ```
 
+pub mod batch;
 pub mod error;
 pub mod expression;
 pub mod livelink;
 pub mod muscle;
 pub mod openface;
 pub mod outputs;
+pub mod resume;
 pub mod sink;
 pub mod sinks;
 pub mod tensor;
