@@ -218,8 +218,8 @@ pub(crate) fn expression_parts(
     }
     let (rig_mesh, map, rig_name) = match rig {
         Some(path) => {
-            let map_path =
-                landmark_map.ok_or_else(|| anyhow::anyhow!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"))?;
+            let map_path = landmark_map
+                .ok_or_else(|| anyhow::anyhow!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"))?;
             let mesh = facecap_core::gltf_io::read_morph_mesh(path)?;
             let map = LandmarkMap::from_json_file(map_path)?;
             (mesh, map, path.display().to_string())

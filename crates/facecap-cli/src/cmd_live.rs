@@ -18,6 +18,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use facecap_core::camera::Intrinsics;
 use facecap_landmarks::detect::Upsample;
+use facecap_pipeline::live::RawInput;
 use facecap_pipeline::net::{quantile, udp_to, JsonTarget, LiveReport, PreviewFrame};
 use facecap_pipeline::outputs::SolveOutputs;
 use facecap_pipeline::{
@@ -48,9 +49,15 @@ pub struct Args {
     /// Camera frame size `WxH` (V4L2 input).
     #[arg(long, value_name = "WxH")]
     pub size: Option<String>,
-    /// Camera frame rate (V4L2 input).
+    /// Camera frame rate (V4L2 input), or the frame rate of `--raw` frames (default 30).
     #[arg(long)]
     pub fps: Option<f64>,
+    /// Raw frames of this size on stdin instead of Y4M (`INPUT` = `-`).
+    #[arg(long, value_name = "WxH")]
+    pub raw: Option<String>,
+    /// Pixel layout of `--raw` frames.
+    #[arg(long, default_value = "yuv420p", value_parser = ["gray", "yuv420p", "rgb24"])]
+    pub raw_format: String,
     /// Send VMC-protocol OSC (VSeeFace, VTube Studio, Warudo, Blender VMC add-ons) to
     /// HOST:PORT (VMC's usual port is 39539).
     #[arg(long, value_name = "HOST:PORT")]
@@ -139,7 +146,10 @@ fn install_signals() -> anyhow::Result<Controls> {
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let controls = install_signals()?;
     if !(args.neutral_after.is_finite() && args.neutral_after >= 0.0) {
-        anyhow::bail!("--neutral-after must be a finite number >= 0, got {}", args.neutral_after);
+        anyhow::bail!(
+            "--neutral-after must be a finite number >= 0, got {}",
+            args.neutral_after
+        );
     }
     if let Some(f) = args.fps {
         if !(f.is_finite() && f > 0.0) {
@@ -173,7 +183,20 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         Some("-") => Some(JsonTarget::Stdout),
         Some(t) => Some(JsonTarget::Udp(udp_to(t)?)),
     };
-    let source = open_live(&input, None)?;
+    let raw = match args.raw.as_deref() {
+        None => None,
+        Some(_) if input != LiveInput::Stdin => anyhow::bail!("--raw reads stdin: give `-` as the input"),
+        Some(r) => {
+            let (width, height) = parse_size(r).map_err(|e| anyhow::anyhow!("--raw: {e}"))?;
+            Some(RawInput {
+                width,
+                height,
+                format: args.raw_format.parse()?,
+                fps: args.fps.unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS),
+            })
+        }
+    };
+    let source = open_live(&input, None, raw)?;
     let info = source.info().clone();
     let camera = match args.camera.as_deref() {
         Some(c) => parse_camera(c)?,
@@ -193,8 +216,14 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     };
     let solve = ExpressionSink::create(rec_dir, &parts.expression, Some(camera), None, FrameImages::None)?;
     let solve = if parts.neutral.active() {
+        let hook = crate::cmd_capture::NeutralHook {
+            choice: parts.neutral.choice,
+            method: parts.neutral.method,
+            objective: parts.neutral.objective,
+            priors: parts.neutral.priors.clone(),
+        };
         solve.with_live_neutral(
-            &parts.neutral,
+            Arc::new(hook),
             LiveNeutral {
                 after: args.neutral_after,
                 window: NEUTRAL_WINDOW_S,
@@ -229,7 +258,11 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         info.width,
         info.height,
         info.fps,
-        if window { "; N: neutral again, Esc/Q: stop" } else { "; Ctrl-C stops, SIGUSR1 takes the neutral again" }
+        if window {
+            "; N: neutral again, Esc/Q: stop"
+        } else {
+            "; Ctrl-C stops, SIGUSR1 takes the neutral again"
+        }
     ));
     let started = std::time::Instant::now();
     let run = std::thread::scope(|scope| -> anyhow::Result<_> {

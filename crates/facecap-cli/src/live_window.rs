@@ -37,7 +37,9 @@ pub fn render_preview(frame: &PreviewFrame, mesh: &MorphMesh, posed: &mut Vec<na
     let step = g.height().div_ceil(MAX_PREVIEW_HEIGHT).max(1);
     let (w, h) = (g.width() / step, g.height() / step);
     let mut cam = RgbImage::from_fn(w.max(1), h.max(1), |x, y| {
-        let v = g.get_pixel((x * step).min(g.width() - 1), (y * step).min(g.height() - 1)).0[0];
+        let v = g
+            .get_pixel((x * step).min(g.width() - 1), (y * step).min(g.height() - 1))
+            .0[0];
         Rgb([v, v, v])
     });
     if let Some(l) = &frame.solved.landmarks {

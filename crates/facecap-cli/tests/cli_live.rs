@@ -144,8 +144,18 @@ fn live_packets_match_the_recording() {
     let processed = summary["frames_processed"].as_u64().unwrap();
     let dropped = summary["frames_dropped"].as_u64().unwrap();
     assert_eq!(arrived, 90, "every frame of the clip arrives");
-    assert_eq!(processed + dropped, arrived, "each frame is processed or counted as dropped");
-    for f in ["landmarks.csv", "pose.csv", "weights.csv", "livelink.csv", "animation.glb"] {
+    assert_eq!(
+        processed + dropped,
+        arrived,
+        "each frame is processed or counted as dropped"
+    );
+    for f in [
+        "landmarks.csv",
+        "pose.csv",
+        "weights.csv",
+        "livelink.csv",
+        "animation.glb",
+    ] {
         assert!(rec.join(f).is_file(), "{f} not recorded");
     }
     let (wh, wrows) = read_csv(&rec.join("weights.csv"));
@@ -217,7 +227,8 @@ fn live_packets_match_the_recording() {
         msgs.len(),
         dropped
     );
-    // real time: never faster than the 30 fps input, and no stall
+    // real time: not faster than the 30 fps input (10 % for the clock of the first and
+    // last bundle), and no stall
     assert!(rate < 33.0 && rate > 5.0, "rate {rate}");
 
     // Live Link: one packet per frame with a face, the values of livelink.csv by name.
@@ -226,17 +237,67 @@ fn live_packets_match_the_recording() {
     let packets = got["livelink"].as_array().unwrap();
     assert_eq!(packets.len(), success.len());
     let order = [
-        "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft", "EyeSquintLeft",
-        "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
-        "EyeSquintRight", "EyeWideRight", "JawForward", "JawLeft", "JawRight", "JawOpen", "MouthClose",
-        "MouthFunnel", "MouthPucker", "MouthLeft", "MouthRight", "MouthSmileLeft", "MouthSmileRight",
-        "MouthFrownLeft", "MouthFrownRight", "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft",
-        "MouthStretchRight", "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
-        "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft",
-        "MouthUpperUpRight", "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
-        "CheekPuff", "CheekSquintLeft", "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight", "TongueOut",
-        "HeadYaw", "HeadPitch", "HeadRoll", "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw",
-        "RightEyePitch", "RightEyeRoll",
+        "EyeBlinkLeft",
+        "EyeLookDownLeft",
+        "EyeLookInLeft",
+        "EyeLookOutLeft",
+        "EyeLookUpLeft",
+        "EyeSquintLeft",
+        "EyeWideLeft",
+        "EyeBlinkRight",
+        "EyeLookDownRight",
+        "EyeLookInRight",
+        "EyeLookOutRight",
+        "EyeLookUpRight",
+        "EyeSquintRight",
+        "EyeWideRight",
+        "JawForward",
+        "JawLeft",
+        "JawRight",
+        "JawOpen",
+        "MouthClose",
+        "MouthFunnel",
+        "MouthPucker",
+        "MouthLeft",
+        "MouthRight",
+        "MouthSmileLeft",
+        "MouthSmileRight",
+        "MouthFrownLeft",
+        "MouthFrownRight",
+        "MouthDimpleLeft",
+        "MouthDimpleRight",
+        "MouthStretchLeft",
+        "MouthStretchRight",
+        "MouthRollLower",
+        "MouthRollUpper",
+        "MouthShrugLower",
+        "MouthShrugUpper",
+        "MouthPressLeft",
+        "MouthPressRight",
+        "MouthLowerDownLeft",
+        "MouthLowerDownRight",
+        "MouthUpperUpLeft",
+        "MouthUpperUpRight",
+        "BrowDownLeft",
+        "BrowDownRight",
+        "BrowInnerUp",
+        "BrowOuterUpLeft",
+        "BrowOuterUpRight",
+        "CheekPuff",
+        "CheekSquintLeft",
+        "CheekSquintRight",
+        "NoseSneerLeft",
+        "NoseSneerRight",
+        "TongueOut",
+        "HeadYaw",
+        "HeadPitch",
+        "HeadRoll",
+        "LeftEyeYaw",
+        "LeftEyePitch",
+        "LeftEyeRoll",
+        "RightEyeYaw",
+        "RightEyePitch",
+        "RightEyeRoll",
     ];
     for p in packets {
         let p = &p[1];
@@ -251,7 +312,10 @@ fn live_packets_match_the_recording() {
             let col = lh.iter().position(|h| h == name).unwrap();
             let want = num(&lrows[k][col]);
             let v = v.as_f64().unwrap();
-            assert!((v - want).abs() < 1e-5, "frame {frame}: {name} packet {v} livelink.csv {want}");
+            assert!(
+                (v - want).abs() < 1e-5,
+                "frame {frame}: {name} packet {v} livelink.csv {want}"
+            );
         }
     }
     eprintln!("live_packets_match_the_recording: {:.1} s", t0.elapsed().as_secs_f64());
@@ -270,7 +334,7 @@ fn preview_window_under_xvfb() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let Some((clip, ff)) = synth_clip(dir.path(), 120, "preview_window_under_xvfb") else {
+    let Some((clip, ff)) = synth_clip(dir.path(), 180, "preview_window_under_xvfb") else {
         return;
     };
     let t0 = Instant::now();
@@ -286,36 +350,58 @@ fn preview_window_under_xvfb() {
     while !socket.exists() && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(50));
     }
-    let mut live = facecap()
+    let live = facecap()
         .args(["live", "--realtime"])
         .arg(&clip)
         .env("DISPLAY", &display)
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(2500));
+    // Screenshots until the window shows a tracked frame (model loading and the first
+    // detection take a moment on a loaded machine), while the 6 s clip plays.
     let shot = dir.path().join("window.png");
-    let grab = Command::new(&ff)
-        .args(["-nostdin", "-loglevel", "error", "-f", "x11grab", "-video_size", "1280x720", "-i"])
-        .arg(&display)
-        .args(["-frames:v", "1", "-y"])
-        .arg(&shot)
-        .status()
-        .unwrap();
+    let mut counts = (0, 0, 0);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(500));
+        let grab = Command::new(&ff)
+            .args([
+                "-nostdin",
+                "-loglevel",
+                "error",
+                "-f",
+                "x11grab",
+                "-video_size",
+                "1280x720",
+                "-i",
+            ])
+            .arg(&display)
+            .args(["-frames:v", "1", "-y"])
+            .arg(&shot)
+            .status()
+            .unwrap();
+        assert!(grab.success(), "x11grab failed");
+        let img = image::open(&shot).unwrap().to_rgb8();
+        // The window: the 512x512 synthetic frame scaled to 256 (grey, green landmarks),
+        // the rig beside it (light background), the status bar (white text) below.
+        counts = (
+            img.pixels()
+                .filter(|p| p.0[1] > 200 && p.0[0] < 90 && p.0[2] < 110)
+                .count(),
+            img.pixels().filter(|p| p.0 == [245, 245, 245]).count(),
+            img.pixels().filter(|p| p.0 == [255, 255, 255]).count(),
+        );
+        if counts.0 > 50 && counts.1 > 1000 {
+            break;
+        }
+    }
     let out = live.wait_with_output().unwrap();
     let _ = xvfb.kill();
     let _ = xvfb.wait();
-    assert!(grab.success(), "x11grab failed");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let keep = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("live_window.png");
     std::fs::copy(&shot, &keep).unwrap();
-    let img = image::open(&shot).unwrap().to_rgb8();
-    // The window sits at the origin (no window manager): the 192x192 synthetic frame
-    // (grey, green landmarks), the rig beside it (light background), the status bar
-    // (white text on dark grey) below.
-    let green = img.pixels().filter(|p| p.0[1] > 200 && p.0[0] < 90 && p.0[2] < 110).count();
-    let rig_bg = img.pixels().filter(|p| p.0 == [245, 245, 245]).count();
-    let text = img.pixels().filter(|p| p.0 == [255, 255, 255]).count();
+    let (green, rig_bg, text) = counts;
     eprintln!(
         "window screenshot {} (green landmark px {green}, rig background px {rig_bg}, status text px {text}) in {:.1} s",
         keep.display(),

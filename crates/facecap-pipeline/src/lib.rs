@@ -61,8 +61,8 @@ pub use expression::{
     NeutralCalibration, SolvedFrame,
 };
 pub use live::{open_live, LatestFrame, LiveInput};
-pub use net::{LiveOutputs, LiveSink};
 pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
+pub use net::{LiveOutputs, LiveSink};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};

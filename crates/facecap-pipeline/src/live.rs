@@ -5,6 +5,8 @@
 //!   with the grey levels of every other source ([`facecap_core::video::Luma::Full`]:
 //!   limited-range luma expanded to 0..255), so a clip gives the same landmarks live
 //!   and through `capture`.
+//! * [`RawStream`] reads raw frames of a given size and layout (`gray`, `yuv420p`,
+//!   `rgb24`) the same way.
 //! * [`open_live`] turns a [`LiveInput`] into a source: stdin is read directly; a V4L2
 //!   camera, a URL or a file (`realtime`: at its own rate, ffmpeg's `-re`) go through an
 //!   `ffmpeg` child that writes Y4M to a pipe.
@@ -118,19 +120,36 @@ impl LiveInput {
     }
 }
 
-/// Opens `input` as a frame source (module docs). `ffmpeg` is the binary to run for
+/// Raw frames on stdin instead of Y4M: size, layout and frame rate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RawInput {
+    /// Frame width.
+    pub width: u32,
+    /// Frame height.
+    pub height: u32,
+    /// Pixel layout.
+    pub format: RawFormat,
+    /// Frames per second (timestamps).
+    pub fps: f64,
+}
+
+/// Opens `input` as a frame source (module docs); `raw` reads stdin as raw frames. `ffmpeg` is the binary to run for
 /// cameras, URLs and files (`None`: [`facecap_core::video::ffmpeg::locate_ffmpeg`]).
 ///
 /// # Errors
 /// A file that does not exist, ffmpeg missing or failing to start, or a stream whose
 /// first bytes are not a Y4M header.
-pub fn open_live(input: &LiveInput, ffmpeg: Option<&Path>) -> Result<Box<dyn FrameSource>> {
+pub fn open_live(input: &LiveInput, ffmpeg: Option<&Path>, raw: Option<RawInput>) -> Result<Box<dyn FrameSource>> {
     if let LiveInput::File { path, .. } = input {
         std::fs::metadata(path).map_err(|e| facecap_core::Error::io(path, e))?;
     }
     let Some(args) = input.ffmpeg_input_args() else {
-        let stdin = std::io::stdin();
-        return Ok(Box::new(Y4mStream::new(Box::new(stdin), PathBuf::from("<stdin>"), None)?));
+        let stdin = Box::new(std::io::stdin());
+        let name = PathBuf::from("<stdin>");
+        return Ok(match raw {
+            Some(r) => Box::new(RawStream::new(stdin, name, r.width, r.height, r.format, r.fps)?),
+            None => Box::new(Y4mStream::new(stdin, name, None)?),
+        });
     };
     let ffmpeg = facecap_core::video::ffmpeg::locate_ffmpeg(ffmpeg)?;
     let name = match input {
@@ -343,6 +362,176 @@ impl FrameSource for Y4mStream {
     }
 }
 
+/// Pixel layout of raw frames on stdin ([`RawStream`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RawFormat {
+    /// 8-bit grey, `W*H` bytes per frame, full range.
+    Gray,
+    /// Planar 4:2:0 Y'CbCr (ffmpeg's `yuv420p`), limited range: the luma plane is used,
+    /// expanded to 0..255 as every other source.
+    Yuv420p,
+    /// Packed 8-bit RGB (`rgb24`): grey = `(77 R + 150 G + 29 B + 128) >> 8` (ITU-R BT.601
+    /// weights, as OpenCV's `RGB2GRAY`).
+    Rgb24,
+}
+
+impl std::str::FromStr for RawFormat {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "gray" => Ok(RawFormat::Gray),
+            "yuv420p" => Ok(RawFormat::Yuv420p),
+            "rgb24" => Ok(RawFormat::Rgb24),
+            _ => Err(Error::invalid("raw pixel format", s, "gray, yuv420p or rgb24")),
+        }
+    }
+}
+
+impl RawFormat {
+    /// Bytes of one `w` x `h` frame.
+    pub fn frame_len(self, w: u32, h: u32) -> usize {
+        let n = w as usize * h as usize;
+        match self {
+            RawFormat::Gray => n,
+            RawFormat::Yuv420p => n + 2 * (w.div_ceil(2) as usize * h.div_ceil(2) as usize),
+            RawFormat::Rgb24 => 3 * n,
+        }
+    }
+}
+
+/// Raw frames of a known size and layout back to back on a reader (stdin:
+/// `ffmpeg ... -f rawvideo -pix_fmt gray - | facecap live - --raw 640x480 --raw-format gray`).
+pub struct RawStream {
+    reader: Box<dyn Read + Send>,
+    name: PathBuf,
+    info: VideoInfo,
+    format: RawFormat,
+    buf: Vec<u8>,
+    lut: [u8; 256],
+    next_index: u64,
+    done: bool,
+}
+
+impl std::fmt::Debug for RawStream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RawStream")
+            .field("name", &self.name)
+            .field("info", &self.info)
+            .field("format", &self.format)
+            .finish()
+    }
+}
+
+impl RawStream {
+    /// Frames of `width` x `height` in `format` at `fps` from `reader`.
+    ///
+    /// # Errors
+    /// A zero size or a frame rate that is not finite and > 0.
+    pub fn new(
+        reader: Box<dyn Read + Send>,
+        name: PathBuf,
+        width: u32,
+        height: u32,
+        format: RawFormat,
+        fps: f64,
+    ) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(Error::invalid(
+                "raw frame size",
+                format!("{width}x{height}"),
+                "W and H > 0",
+            ));
+        }
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(Error::invalid("raw frame rate", fps, "a finite number > 0"));
+        }
+        Ok(RawStream {
+            reader,
+            name,
+            info: VideoInfo {
+                width,
+                height,
+                fps,
+                frame_count: None,
+                duration_s: None,
+                codec: format!("raw {format:?}").to_lowercase(),
+                kind: SourceKind::Y4m,
+            },
+            format,
+            buf: vec![0; format.frame_len(width, height)],
+            lut: limited_to_full_luma_lut(),
+            next_index: 0,
+            done: false,
+        })
+    }
+}
+
+impl FrameSource for RawStream {
+    fn info(&self) -> &VideoInfo {
+        &self.info
+    }
+
+    fn path(&self) -> &Path {
+        &self.name
+    }
+
+    fn read_into(&mut self, frame: &mut Frame) -> facecap_core::Result<bool> {
+        if self.done {
+            return Ok(false);
+        }
+        // a clean end only between frames
+        let mut got = 0;
+        while got < self.buf.len() {
+            match self.reader.read(&mut self.buf[got..]) {
+                Ok(0) => break,
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    self.done = true;
+                    return Err(facecap_core::Error::io(&self.name, e));
+                }
+            }
+        }
+        if got == 0 {
+            self.done = true;
+            return Ok(false);
+        }
+        if got < self.buf.len() {
+            self.done = true;
+            return Err(facecap_core::Error::Decode {
+                path: self.name.clone(),
+                frame: Some(self.next_index),
+                reason: format!("the stream ends inside a frame ({got} of {} bytes)", self.buf.len()),
+            });
+        }
+        let (w, h) = (self.info.width, self.info.height);
+        if frame.gray.width() != w || frame.gray.height() != h {
+            frame.gray = image::GrayImage::new(w, h);
+        }
+        frame.rgb = None;
+        let n = w as usize * h as usize;
+        let out: &mut [u8] = frame.gray.as_mut();
+        match self.format {
+            RawFormat::Gray => out.copy_from_slice(&self.buf[..n]),
+            RawFormat::Yuv420p => {
+                for (o, &y) in out.iter_mut().zip(&self.buf[..n]) {
+                    *o = self.lut[usize::from(y)];
+                }
+            }
+            RawFormat::Rgb24 => {
+                for (o, p) in out.iter_mut().zip(self.buf.chunks_exact(3)) {
+                    let v = 77 * u32::from(p[0]) + 150 * u32::from(p[1]) + 29 * u32::from(p[2]) + 128;
+                    *o = (v >> 8) as u8;
+                }
+            }
+        }
+        frame.index = self.next_index;
+        frame.timestamp_s = self.next_index as f64 / self.info.fps;
+        self.next_index += 1;
+        Ok(true)
+    }
+}
+
 /// Arrival times of recent frames, by frame index (module docs).
 #[derive(Debug, Clone, Default)]
 pub struct ArrivalLog(Arc<Mutex<VecDeque<(u64, Instant)>>>);
@@ -428,12 +617,7 @@ impl LatestFrame {
         std::thread::Builder::new()
             .name("facecap-live-reader".into())
             .spawn(move || loop {
-                let mut frame = sh
-                    .slot
-                    .lock()
-                    .ok()
-                    .and_then(|mut s| s.spare.pop())
-                    .unwrap_or_default();
+                let mut frame = sh.slot.lock().ok().and_then(|mut s| s.spare.pop()).unwrap_or_default();
                 let r = inner.read_into(&mut frame);
                 let now = Instant::now();
                 let Ok(mut s) = sh.slot.lock() else { return };
@@ -558,8 +742,12 @@ mod tests {
         for cut in [0, 5, 20] {
             assert!(Y4mStream::new(Box::new(std::io::Cursor::new(bytes[..cut].to_vec())), "t".into(), None).is_err());
         }
-        let mut s = Y4mStream::new(Box::new(std::io::Cursor::new(bytes[..bytes.len() - 3].to_vec())), "t".into(), None)
-            .unwrap();
+        let mut s = Y4mStream::new(
+            Box::new(std::io::Cursor::new(bytes[..bytes.len() - 3].to_vec())),
+            "t".into(),
+            None,
+        )
+        .unwrap();
         let mut f = Frame::default();
         assert!(s.read_into(&mut f).unwrap());
         assert!(s.read_into(&mut f).is_err());
@@ -609,16 +797,54 @@ mod tests {
     }
 
     #[test]
+    fn raw_streams_in_three_layouts() {
+        let (w, h) = (4u32, 2u32);
+        for (fmt, frame, want) in [
+            (RawFormat::Gray, vec![7u8; 8], 7u8),
+            (RawFormat::Yuv420p, [vec![235u8; 8], vec![128; 4]].concat(), 255),
+            (RawFormat::Rgb24, [10u8, 20, 30].repeat(8), 18),
+        ] {
+            let bytes = [frame.clone(), frame.clone(), frame[..3].to_vec()].concat();
+            let mut s = RawStream::new(Box::new(std::io::Cursor::new(bytes)), "t".into(), w, h, fmt, 25.0).unwrap();
+            let mut f = Frame::default();
+            assert!(s.read_into(&mut f).unwrap());
+            assert_eq!(f.gray.get_pixel(3, 1)[0], want, "{fmt:?}");
+            assert!(s.read_into(&mut f).unwrap());
+            assert_eq!(f.timestamp_s, 0.04);
+            // the third frame is cut short: an error, never a half frame
+            assert!(s.read_into(&mut f).is_err(), "{fmt:?}");
+        }
+        assert!(RawStream::new(Box::new(std::io::empty()), "t".into(), 0, 2, RawFormat::Gray, 25.0).is_err());
+        assert!(RawStream::new(Box::new(std::io::empty()), "t".into(), 2, 2, RawFormat::Gray, f64::NAN).is_err());
+        assert!("bgr".parse::<RawFormat>().is_err());
+    }
+
+    #[test]
     fn parses_inputs() {
         assert_eq!(LiveInput::parse("-", false, None, None), LiveInput::Stdin);
-        assert!(matches!(LiveInput::parse("/dev/video0", false, None, None), LiveInput::Camera { .. }));
-        assert!(matches!(LiveInput::parse("rtsp://h/s", false, None, None), LiveInput::Url(_)));
+        assert!(matches!(
+            LiveInput::parse("/dev/video0", false, None, None),
+            LiveInput::Camera { .. }
+        ));
+        assert!(matches!(
+            LiveInput::parse("rtsp://h/s", false, None, None),
+            LiveInput::Url(_)
+        ));
         let f = LiveInput::parse("a.mp4", true, None, None);
         assert_eq!(f.ffmpeg_input_args().unwrap(), vec!["-re", "-i", "a.mp4"]);
         let c = LiveInput::parse("/dev/video2", false, Some((640, 480)), Some(30.0));
         assert_eq!(
             c.ffmpeg_input_args().unwrap(),
-            vec!["-f", "v4l2", "-video_size", "640x480", "-framerate", "30", "-i", "/dev/video2"]
+            vec![
+                "-f",
+                "v4l2",
+                "-video_size",
+                "640x480",
+                "-framerate",
+                "30",
+                "-i",
+                "/dev/video2"
+            ]
         );
     }
 }

@@ -204,7 +204,11 @@ impl CurveMap {
                 .map(|(n, &c)| (n.as_str(), v[c]))
                 .collect()
         } else {
-            self.names.iter().map(String::as_str).zip(weights.iter().copied()).collect()
+            self.names
+                .iter()
+                .map(String::as_str)
+                .zip(weights.iter().copied())
+                .collect()
         }
     }
 }
@@ -291,7 +295,11 @@ pub fn live_link_packet(device: &str, subject: &str, frame_number: i32, fps: f64
     }
     b.extend_from_slice(&frame_number.to_be_bytes());
     b.extend_from_slice(&0.0f32.to_be_bytes());
-    let rate = if fps.is_finite() && fps >= 1.0 { fps.round() as i32 } else { 30 };
+    let rate = if fps.is_finite() && fps >= 1.0 {
+        fps.round() as i32
+    } else {
+        30
+    };
     b.extend_from_slice(&rate.to_be_bytes());
     b.extend_from_slice(&1i32.to_be_bytes());
     b.push(curves.len() as u8);
@@ -306,7 +314,16 @@ pub fn json_line(names: &[String], frame: &SolvedFrame) -> String {
     let weights: serde_json::Map<String, serde_json::Value> = names
         .iter()
         .zip(&frame.weights)
-        .map(|(n, &w)| (n.clone(), if frame.success { serde_json::json!(w) } else { serde_json::Value::Null }))
+        .map(|(n, &w)| {
+            (
+                n.clone(),
+                if frame.success {
+                    serde_json::json!(w)
+                } else {
+                    serde_json::Value::Null
+                },
+            )
+        })
         .collect();
     let pose = frame.pose.as_ref().map(|p| {
         let r = pose_row(Some(p));
@@ -505,7 +522,9 @@ impl Sink for LiveSink<'_> {
 
     fn frame(&mut self, face: &TrackedFace) -> Result<()> {
         self.solve.frame(face)?;
-        let Some(frame) = self.solve.last_frame().cloned() else { return Ok(()) };
+        let Some(frame) = self.solve.last_frame().cloned() else {
+            return Ok(());
+        };
         self.send(&frame)?;
         let now = Instant::now();
         let latency_ms = self
@@ -577,7 +596,9 @@ mod tests {
         let c = CurveMap::new(&names);
         let p = vmc_packet(&c, &frame(vec![0.5, 0.2, 0.4])).unwrap();
         let (_, pkt) = rosc::decoder::decode_udp(&p).unwrap();
-        let OscPacket::Bundle(b) = pkt else { panic!("not a bundle") };
+        let OscPacket::Bundle(b) = pkt else {
+            panic!("not a bundle")
+        };
         let msgs: Vec<OscMessage> = b
             .content
             .into_iter()
@@ -588,7 +609,10 @@ mod tests {
             .collect();
         assert_eq!(msgs[0].addr, "/VMC/Ext/Blend/Val");
         // ARKit order of livelink.csv: JawOpen (17) before BrowInnerUp (43), halves averaged
-        assert_eq!(msgs[0].args, vec![OscType::String("JawOpen".into()), OscType::Float(0.5)]);
+        assert_eq!(
+            msgs[0].args,
+            vec![OscType::String("JawOpen".into()), OscType::Float(0.5)]
+        );
         assert_eq!(
             msgs[1].args,
             vec![OscType::String("BrowInnerUp".into()), OscType::Float(0.3f64 as f32)]
