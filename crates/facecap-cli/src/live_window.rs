@@ -88,7 +88,7 @@ pub fn run_window(rx: Receiver<PreviewFrame>, mesh: &MorphMesh, controls: &Contr
                     img.pixels()
                         .map(|p| (u32::from(p.0[0]) << 16) | (u32::from(p.0[1]) << 8) | u32::from(p.0[2])),
                 );
-                if window.as_ref().is_none_or(|win| win.get_size() != (w, h)) {
+                if !window.as_ref().is_some_and(|win| win.get_size() == (w, h)) {
                     window = Some(
                         Window::new("facecap live", w, h, WindowOptions::default())
                             .map_err(|e| format!("cannot open the window: {e}"))?,

@@ -79,6 +79,10 @@ fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
     (header, rows)
 }
 
+/// One received VMC frame: receive time, `Blend/Val` (name, value) pairs, messages in
+/// the frame, the `Bone/Pos Head` values.
+type OscFrame = (f64, Vec<(String, f64)>, usize, Vec<f64>);
+
 fn num(s: &str) -> f64 {
     s.parse::<f64>().unwrap_or(f64::NAN)
 }
@@ -182,7 +186,7 @@ fn live_packets_match_the_recording() {
     assert_eq!(got["errors"].as_array().unwrap().len(), 0, "{}", got["errors"]);
     // OSC: Val* Apply Bone/Pos T per frame, in order.
     let msgs = got["osc"].as_array().unwrap();
-    let mut frames: Vec<(f64, Vec<(String, f64)>, usize, Vec<f64>)> = Vec::new();
+    let mut frames: Vec<OscFrame> = Vec::new();
     let mut vals = Vec::new();
     let mut count = 0usize;
     let mut bone = Vec::new();
