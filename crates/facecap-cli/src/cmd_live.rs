@@ -70,7 +70,8 @@ pub struct Args {
     #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = "-")]
     pub json: Option<String>,
     /// Record into DIR the files `capture` writes (landmarks.csv, pose.csv, weights.csv,
-    /// livelink.csv, openface.csv, animation.glb, summary.json), finalised at the end.
+    /// livelink.csv, openface.csv, animation.glb, summary.json) and latency.csv (per
+    /// frame: stream time, ms from arrival to packets), finalised at the end.
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
     /// No preview window (headless).
@@ -246,7 +247,21 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         device: format!("facecap-{}", std::process::id()),
         fps: info.fps,
     };
-    let mut live_sink = LiveSink::new(solve, outputs, arrivals, stats.clone(), window.then_some(preview_tx));
+    let mut live_sink = LiveSink::new(solve, outputs, arrivals, stats.clone(), window.then_some(preview_tx))
+        .on_neutral(Box::new(|e: &serde_json::Value| {
+            crate::out::info(&format!(
+                "live: neutral {} from frames {}..{} {} from frame {}",
+                e["calibration"],
+                e["first_frame"],
+                e["last_frame"],
+                if e.get("error").is_some() {
+                    "failed, kept the previous rig"
+                } else {
+                    "applied"
+                },
+                e["applied_from_frame"]
+            ))
+        }));
     let mut landmarks = args
         .out
         .as_ref()
@@ -293,6 +308,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let (result, report) = live_sink.finish()?;
     let arrived = stats.arrived.load(Ordering::SeqCst);
     let dropped = stats.dropped.load(Ordering::SeqCst);
+    let dropped_at_start = stats.dropped_at_start.load(Ordering::SeqCst);
+    let running = arrived.saturating_sub(dropped_at_start);
     let lat = latency_summary(&report);
     let summary = json!({
         "input": args.input,
@@ -303,7 +320,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         "frames_arrived": arrived,
         "frames_processed": report.frames,
         "frames_dropped": dropped,
-        "dropped_percent": if arrived > 0 { 100.0 * dropped as f64 / arrived as f64 } else { 0.0 },
+        "frames_dropped_at_start": dropped_at_start,
+        "dropped_percent": if running > 0 { 100.0 * dropped as f64 / running as f64 } else { 0.0 },
         "faces_found": result.faces_found,
         "latency_ms": lat,
         "osc_packets": report.osc_packets,
@@ -320,11 +338,12 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},
     });
     crate::out::info(&format!(
-        "live: {} frames arrived, {} processed, {} dropped ({:.2} %), face on {}; latency arrival to packet p50 {:.1} ms, p99 {:.1} ms",
+        "live: {} frames arrived, {} processed, {} dropped ({:.2} %) and {} before the first, face on {}; latency arrival to packet p50 {:.1} ms, p99 {:.1} ms",
         arrived,
         report.frames,
         dropped,
         summary["dropped_percent"].as_f64().unwrap_or(0.0),
+        dropped_at_start,
         result.faces_found,
         lat["p50"].as_f64().unwrap_or(f64::NAN),
         lat["p99"].as_f64().unwrap_or(f64::NAN),
@@ -350,6 +369,11 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 rig_unit_mm: facecap_pipeline::openface::RIG_UNIT_MM,
             },
         )?;
+        let mut text = String::from("timestamp,latency_ms\n");
+        for (t, l) in &report.latencies {
+            text.push_str(&format!("{t:.6},{l:.3}\n"));
+        }
+        facecap_core::atomic::write_atomic(dir.join("latency.csv"), |w| w.write_all(text.as_bytes()))?;
         let mut summary = summary;
         summary["livelink_csv"] = json!(written.livelink);
         summary["head_animated"] = json!(written.head_animated);

@@ -8,7 +8,8 @@
 //! * the Live Link Face packets are decoded by the same script from the format's public
 //!   description and checked against the recorded `livelink.csv`;
 //! * the JSON lines on stdout against `weights.csv`;
-//! * under Xvfb, a screenshot of the preview window (skipped where Xvfb is absent).
+//! * under Xvfb, a screenshot of the preview window (skipped where Xvfb is absent);
+//! * SIGUSR1 takes the neutral again, SIGTERM ends the run with the recording finalised.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -146,7 +147,7 @@ fn live_packets_match_the_recording() {
         serde_json::from_str(&std::fs::read_to_string(rec.join("summary.json")).unwrap()).unwrap();
     let arrived = summary["frames_arrived"].as_u64().unwrap();
     let processed = summary["frames_processed"].as_u64().unwrap();
-    let dropped = summary["frames_dropped"].as_u64().unwrap();
+    let dropped = summary["frames_dropped"].as_u64().unwrap() + summary["frames_dropped_at_start"].as_u64().unwrap();
     assert_eq!(arrived, 90, "every frame of the clip arrives");
     assert_eq!(
         processed + dropped,
@@ -167,6 +168,10 @@ fn live_packets_match_the_recording() {
     let success: Vec<&Vec<String>> = wrows.iter().filter(|r| r[2] == "1").collect();
     assert!(success.len() as u64 > processed * 9 / 10, "the synthetic face is found");
     let shapes = &wh[4..];
+    assert!(
+        summary["neutral_calibrations"].as_u64().unwrap() >= 1,
+        "the first second's neutral"
+    );
 
     // JSON lines on stdout: one per processed frame, weights by name = weights.csv.
     let stdout = String::from_utf8(live.stdout).unwrap();
@@ -414,4 +419,90 @@ fn preview_window_under_xvfb() {
     assert!(green > 50, "landmarks drawn");
     assert!(rig_bg > 1000, "rig rendered");
     assert!(text > 100, "status line drawn");
+}
+
+/// SIGUSR1 takes the neutral again while running; SIGTERM ends the run and the recording
+/// is finalised (every file under its final name, `summary.json` last).
+#[test]
+fn signals_redo_the_neutral_and_finish_the_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some((clip, _)) = synth_clip(dir.path(), 300, "signals_redo_the_neutral_and_finish_the_recording") else {
+        return;
+    };
+    let t0 = Instant::now();
+    let rec = dir.path().join("rec");
+    let mut live = facecap()
+        .args(["live", "--realtime", "--no-window", "--out"])
+        .arg(&rec)
+        .arg(&clip)
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = live.id().to_string();
+    let signal = |sig: &str| {
+        assert!(Command::new("kill").args([sig, &pid]).status().unwrap().success());
+    };
+    // stderr says when each neutral is applied: redo after the first, stop after the second
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let err = live.stderr.take().unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut all = String::new();
+        for line in BufReader::new(err).lines().map_while(Result::ok) {
+            all.push_str(&line);
+            all.push('\n');
+            if line.contains("live: neutral") {
+                let _ = tx.send(line);
+            }
+        }
+        all
+    });
+    let wait = |what: &str| {
+        rx.recv_timeout(Duration::from_secs(20))
+            .unwrap_or_else(|_| panic!("no {what} neutral within 20 s"))
+    };
+    eprintln!("{}", wait("first"));
+    signal("-USR1");
+    eprintln!("{}", wait("second"));
+    signal("-TERM");
+    let status = live.wait().unwrap();
+    let stderr = reader.join().unwrap();
+    assert!(status.success(), "{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rec.join("summary.json")).unwrap()).unwrap();
+    let processed = summary["frames_processed"].as_u64().unwrap();
+    assert!(
+        processed > 30 && processed < 300,
+        "stopped early by SIGTERM: {processed} frames"
+    );
+    let (_, rows) = read_csv(&rec.join("weights.csv"));
+    assert_eq!(rows.len() as u64, processed);
+    for f in [
+        "landmarks.csv",
+        "pose.csv",
+        "livelink.csv",
+        "openface.csv",
+        "animation.glb",
+    ] {
+        assert!(rec.join(f).is_file(), "{f} not recorded");
+    }
+    let names: Vec<String> = std::fs::read_dir(&rec)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        !names.iter().any(|n| n.contains(".tmp")),
+        "temporary files left: {names:?}"
+    );
+    let cal = summary["neutral_calibration"].as_array().unwrap();
+    assert_eq!(summary["neutral_calibrations"].as_u64().unwrap() as usize, cal.len());
+    assert!(cal.len() >= 2, "the first-second neutral and the SIGUSR1 one: {cal:?}");
+    assert!(cal[1]["first_frame"].as_u64() > cal[0]["last_frame"].as_u64());
+    eprintln!(
+        "{} frames, neutrals {:?}, in {:.1} s",
+        processed,
+        cal.iter()
+            .map(|c| (&c["first_frame"], &c["applied_from_frame"]))
+            .collect::<Vec<_>>(),
+        t0.elapsed().as_secs_f64()
+    );
 }

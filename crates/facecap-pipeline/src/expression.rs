@@ -390,6 +390,11 @@ impl<'a> ExpressionSink<'a> {
         &self.result.names
     }
 
+    /// The neutral calibrations so far (`null`, or a list for live calibrations).
+    pub fn neutral_report(&self) -> &serde_json::Value {
+        &self.result.neutral_report
+    }
+
     /// How many live neutral calibrations were applied so far.
     pub fn live_neutrals_taken(&self) -> u32 {
         match &self.result.neutral_report {

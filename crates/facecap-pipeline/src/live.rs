@@ -558,8 +558,14 @@ impl ArrivalLog {
 pub struct LiveStats {
     /// Frames read from the input.
     pub arrived: AtomicU64,
-    /// Frames replaced by a newer one before the consumer took them.
+    /// Frames replaced by a newer one before the consumer took them, once it had taken
+    /// its first frame.
     pub dropped: AtomicU64,
+    /// Frames replaced before the consumer took its first one (start-up: a stream that
+    /// began before the models were loaded, e.g. `ffmpeg -re` catching up).
+    pub dropped_at_start: AtomicU64,
+    /// Frames handed to the consumer.
+    pub taken: AtomicU64,
 }
 
 struct Slot {
@@ -626,7 +632,11 @@ impl LatestFrame {
                         st.arrived.fetch_add(1, Ordering::SeqCst);
                         ar.push(frame.index, now);
                         if let Some(old) = s.newest.replace(frame) {
-                            st.dropped.fetch_add(1, Ordering::SeqCst);
+                            if st.taken.load(Ordering::SeqCst) == 0 {
+                                st.dropped_at_start.fetch_add(1, Ordering::SeqCst);
+                            } else {
+                                st.dropped.fetch_add(1, Ordering::SeqCst);
+                            }
                             s.spare.push(old);
                         }
                     }
@@ -680,6 +690,7 @@ impl FrameSource for LatestFrame {
                 return Ok(false);
             }
             if let Some(mut f) = s.newest.take() {
+                self.stats.taken.fetch_add(1, Ordering::SeqCst);
                 std::mem::swap(frame, &mut f);
                 if f.gray.width() == frame.gray.width() && f.gray.height() == frame.gray.height() {
                     s.spare.push(f);
@@ -771,7 +782,8 @@ mod tests {
             std::thread::sleep(Duration::from_millis(2));
         }
         assert!(taken.windows(2).all(|w| w[0] < w[1]), "{taken:?}");
-        let dropped = stats.dropped.load(Ordering::SeqCst);
+        let dropped = stats.dropped.load(Ordering::SeqCst) + stats.dropped_at_start.load(Ordering::SeqCst);
+        assert_eq!(stats.taken.load(Ordering::SeqCst), taken.len() as u64);
         assert_eq!(stats.arrived.load(Ordering::SeqCst), u64::from(n));
         assert_eq!(taken.len() as u64 + dropped, u64::from(n));
         assert!(dropped > 0, "a slow consumer must see drops");

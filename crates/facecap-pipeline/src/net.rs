@@ -409,7 +409,12 @@ pub struct LiveSink<'a> {
     dropped: Arc<crate::live::LiveStats>,
     recent: std::collections::VecDeque<Instant>,
     report: LiveReport,
+    on_neutral: Option<NeutralCallback<'a>>,
+    neutrals_seen: u32,
 }
+
+/// Called with each live neutral calibration's entry when it is applied (or failed).
+pub type NeutralCallback<'a> = Box<dyn FnMut(&serde_json::Value) + Send + 'a>;
 
 impl std::fmt::Debug for LiveSink<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -439,7 +444,15 @@ impl<'a> LiveSink<'a> {
             dropped: stats,
             recent: std::collections::VecDeque::new(),
             report: LiveReport::default(),
+            on_neutral: None,
+            neutrals_seen: 0,
         }
+    }
+
+    /// Calls `f` with each live neutral calibration when it is applied.
+    pub fn on_neutral(mut self, f: NeutralCallback<'a>) -> Self {
+        self.on_neutral = Some(f);
+        self
     }
 
     /// Live calibrations taken so far.
@@ -522,6 +535,12 @@ impl Sink for LiveSink<'_> {
 
     fn frame(&mut self, face: &TrackedFace) -> Result<()> {
         self.solve.frame(face)?;
+        if let (Some(f), serde_json::Value::Array(entries)) = (self.on_neutral.as_mut(), self.solve.neutral_report()) {
+            for e in entries.iter().skip(self.neutrals_seen as usize) {
+                f(e);
+            }
+            self.neutrals_seen = entries.len() as u32;
+        }
         let Some(frame) = self.solve.last_frame().cloned() else {
             return Ok(());
         };
