@@ -107,16 +107,16 @@ pub struct Args {
     pub upsample: Upsample,
 }
 
-fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+fn parse_size(flag: &str, s: &str) -> anyhow::Result<(u32, u32)> {
     let (w, h) = s
         .split_once(['x', 'X'])
-        .ok_or_else(|| anyhow::anyhow!("--size {s:?}: expected WxH, e.g. 640x480"))?;
+        .ok_or_else(|| anyhow::anyhow!("{flag} {s:?}: expected WxH, e.g. 640x480"))?;
     let (w, h): (u32, u32) = (
-        w.trim().parse().with_context(|| format!("--size {s:?}: width"))?,
-        h.trim().parse().with_context(|| format!("--size {s:?}: height"))?,
+        w.trim().parse().with_context(|| format!("{flag} {s:?}: width"))?,
+        h.trim().parse().with_context(|| format!("{flag} {s:?}: height"))?,
     );
     if w == 0 || h == 0 {
-        anyhow::bail!("--size {s:?}: width and height must be > 0");
+        anyhow::bail!("{flag} {s:?}: width and height must be > 0");
     }
     Ok((w, h))
 }
@@ -157,7 +157,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             anyhow::bail!("--fps must be a finite number > 0, got {f}");
         }
     }
-    let size = args.size.as_deref().map(parse_size).transpose()?;
+    let size = args.size.as_deref().map(|s| parse_size("--size", s)).transpose()?;
     let input = LiveInput::parse(&args.input, args.realtime, size, args.fps);
     if let LiveInput::File { path, realtime: false } = &input {
         anyhow::bail!(
@@ -188,7 +188,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         None => None,
         Some(_) if input != LiveInput::Stdin => anyhow::bail!("--raw reads stdin: give `-` as the input"),
         Some(r) => {
-            let (width, height) = parse_size(r).map_err(|e| anyhow::anyhow!("--raw: {e}"))?;
+            let (width, height) = parse_size("--raw", r)?;
             Some(RawInput {
                 width,
                 height,
