@@ -8,9 +8,10 @@
 # again: every step checks what is already there (by sha256 for downloaded files) and
 # skips it. Downloads come only from package registries, by package name:
 #
-#   Debian   ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm
+#   Debian   ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm xvfb
 #            ca-certificates curl slurm-wlm munge (Slurm for the batch test, scripts/test_slurm.sh)
-#   PyPI     dlib-bin==20.0.1.post1 + numpy (venv, only to export dlib's HOG face detector)
+#   PyPI     dlib-bin==20.0.1.post1 + numpy (venv, only to export dlib's HOG face detector),
+#            python-osc==1.9.3 (venv, the OSC receiver of the live tests)
 #            face_recognition_models==0.3.0 (sdist: dlib's 68-pt, 5-pt and MMOD models)
 #            scikit-image==0.26.0 (wheel: skimage/data/astronaut.png, NASA, public domain)
 #            imageio-ffmpeg==0.6.0 (wheel: a static ffmpeg 7.0.2, fallback when no ffmpeg on PATH)
@@ -81,6 +82,9 @@ declare -A MESH_MODEL_SHA=(
   [face_landmarks_detector.tflite]="c7d54204ce0448474c7f3fa9af494787c0965cbdd6f20fc72867e43046bd43d5"
   [geometry_pipeline_metadata_landmarks.binarypb]="bdbcda96dfcb7da883da124aaa2c55dee49770d934f0fcc71747f8c21bdc75b4"
 )
+# OSC receiver of the live tests (scripts/live_receiver.py), a maintained library facecap did not write.
+PYTHON_OSC_VERSION="1.9.3"
+PYTHON_OSC_WHEEL_SHA="7def2075be72f07bae5a4c1a55cc7d907b247f4a5d910f3159ed30ac2b1f17cc"
 FFMPEG_BIN_NAME="imageio_ffmpeg/binaries/ffmpeg-linux-x86_64-v7.0.2"
 FFMPEG_BIN_SHA="e7e7fb30477f717e6f55f9180a70386c62677ef8a4d4d1a5d948f4098aa3eb99"
 
@@ -99,12 +103,13 @@ do not use it (report it)."
 }
 
 # ---------------------------------------------------------------- apt packages
-# slurm-wlm and munge: the one-node Slurm cluster of scripts/test_slurm.sh (`facecap batch --slurm`).
+# slurm-wlm and munge: the one-node Slurm cluster of scripts/test_slurm.sh (`facecap batch --slurm`);
+# xvfb: the live preview window's test.
 APT_PACKAGES=(ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl
-  slurm-wlm munge)
+  xvfb slurm-wlm munge)
 # A package counts as present if dpkg has it or, for tools, the command exists (e.g.
 # NodeSource's nodejs ships npm, and Debian's npm package would conflict with it).
-declare -A APT_COMMAND=([ffmpeg]=ffmpeg [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl)
+declare -A APT_COMMAND=([ffmpeg]=ffmpeg [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl [xvfb]=Xvfb)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   if dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then continue; fi
@@ -158,6 +163,20 @@ else
   "$VENV/bin/pip" install -q "dlib-bin==$DLIB_BIN_VERSION" "numpy==$NUMPY_VERSION" </dev/null
 fi
 PIP=("$VENV/bin/pip")
+if "$VENV/bin/python" -c "import importlib.metadata as m, pythonosc; assert m.version('python-osc') == '$PYTHON_OSC_VERSION'" 2>/dev/null; then
+  log "python-osc==$PYTHON_OSC_VERSION present"
+else
+  d="$DL/python-osc-$PYTHON_OSC_VERSION"
+  whl="$d/python_osc-$PYTHON_OSC_VERSION-py3-none-any.whl"
+  if ! has_sha "$whl" "$PYTHON_OSC_WHEEL_SHA"; then
+    log "downloading python-osc==$PYTHON_OSC_VERSION (PyPI)"
+    mkdir -p "$d"
+    rm -f "$whl"
+    "${PIP[@]}" download -q --no-deps --only-binary :all: -d "$d" "python-osc==$PYTHON_OSC_VERSION" </dev/null
+  fi
+  check_sha "$whl" "$PYTHON_OSC_WHEEL_SHA" "python-osc-$PYTHON_OSC_VERSION wheel"
+  "${PIP[@]}" install -q --no-deps "$whl" </dev/null
+fi
 
 # ---------------------------------------------------------------- dlib HOG face detector
 if [ -f scripts/export_dlib_hog.py ]; then

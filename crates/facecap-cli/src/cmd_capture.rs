@@ -199,22 +199,32 @@ pub(crate) fn parse_camera(s: &str) -> anyhow::Result<Intrinsics> {
     Ok(Intrinsics::new(v[0], v[1], v[2], v[3])?)
 }
 
-pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
-    let method: Method = args.solver.parse()?;
-    let neutral: crate::neutral::NeutralChoice = args.neutral.parse()?;
-    if !(args.temporal.is_finite() && args.temporal >= 0.0) {
-        anyhow::bail!("--temporal must be finite and >= 0, got {}", args.temporal);
+/// The rig, the expression solve and its neutral calibration hook, as `capture` sets
+/// them up (also used by `live`): `rig` + `landmark_map` or the built-in rig, `solver`,
+/// `temporal` weight, `neutral` choice.
+pub(crate) struct ExpressionParts {
+    pub(crate) rig_mesh: MorphMesh,
+    pub(crate) map: LandmarkMap,
+    pub(crate) rig_name: String,
+    pub(crate) expression: ExpressionSetup,
+    pub(crate) neutral: NeutralHook,
+}
+
+pub(crate) fn expression_parts(
+    rig: Option<&Path>,
+    landmark_map: Option<&Path>,
+    solver: &str,
+    temporal: f64,
+    neutral: &str,
+) -> anyhow::Result<ExpressionParts> {
+    let method: Method = solver.parse()?;
+    let neutral: crate::neutral::NeutralChoice = neutral.parse()?;
+    if !(temporal.is_finite() && temporal >= 0.0) {
+        anyhow::bail!("--temporal must be finite and >= 0, got {temporal}");
     }
-    let obj_space = match (&args.obj_space, args.obj) {
-        (Some(s), _) => Some(s.parse::<ObjSpace>()?),
-        (None, true) => Some(ObjSpace::Model),
-        (None, false) => None,
-    };
-    let (rig_mesh, map, rig_name) = match &args.rig {
+    let (rig_mesh, map, rig_name) = match rig {
         Some(path) => {
-            let map_path = args
-                .landmark_map
-                .as_ref()
+            let map_path = landmark_map
                 .ok_or_else(|| anyhow::anyhow!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"))?;
             let mesh = facecap_core::gltf_io::read_morph_mesh(path)?;
             let map = LandmarkMap::from_json_file(map_path)?;
@@ -227,10 +237,50 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     };
     let rig = BlendshapeRig::from_morph_mesh(rig_mesh.clone(), &map, &rig_name)?;
     let objective = ObjectiveParams {
-        temporal: args.temporal,
+        temporal,
         ..ObjectiveParams::default()
     };
     objective.validate()?;
+    let priors = rig_priors(&rig);
+    Ok(ExpressionParts {
+        rig_mesh,
+        map,
+        rig_name,
+        expression: ExpressionSetup {
+            rig,
+            method,
+            objective,
+            priors: priors.clone(),
+        },
+        neutral: NeutralHook {
+            choice: neutral,
+            method,
+            objective,
+            priors,
+        },
+    })
+}
+
+pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
+    let obj_space = match (&args.obj_space, args.obj) {
+        (Some(s), _) => Some(s.parse::<ObjSpace>()?),
+        (None, true) => Some(ObjSpace::Model),
+        (None, false) => None,
+    };
+    let ExpressionParts {
+        rig_mesh,
+        map,
+        rig_name,
+        expression,
+        neutral,
+    } = expression_parts(
+        args.rig.as_deref(),
+        args.landmark_map.as_deref(),
+        &args.solver,
+        args.temporal,
+        &args.neutral,
+    )?;
+    let method = expression.method;
     let camera = args.camera.as_deref().map(parse_camera).transpose()?;
     let tracker = VideoTracker::new(&TrackerPolicy {
         smooth: args.smooth,
@@ -292,26 +342,15 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         },
         "version": env!("CARGO_PKG_VERSION"),
     });
-    let priors = rig_priors(&rig);
     Ok(Setup {
         rig_mesh,
-        expression: ExpressionSetup {
-            rig,
-            method,
-            objective,
-            priors: priors.clone(),
-        },
+        expression,
         rig_name,
         camera,
         tracker,
         muscles,
         tensor,
-        neutral: NeutralHook {
-            choice: neutral,
-            method,
-            objective,
-            priors,
-        },
+        neutral,
         obj_space,
         args_echo,
         output_settings,

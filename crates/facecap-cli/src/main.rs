@@ -20,6 +20,7 @@ mod cmd_capture;
 mod cmd_info;
 mod cmd_landmarks;
 mod cmd_landmarks_video;
+mod cmd_live;
 mod cmd_muscle;
 mod cmd_rig;
 mod cmd_solve;
@@ -28,6 +29,7 @@ mod cmd_tensor;
 mod cmd_tensor_fit;
 mod cmd_transfer;
 mod default_rig;
+mod live_window;
 mod neutral;
 mod out;
 mod progress;
@@ -69,6 +71,8 @@ enum Command {
     Capture(cmd_capture::Args),
     /// A manifest of videos captured in resumable shards, locally or as a Slurm job array.
     Batch(cmd_batch::Args),
+    /// Live capture: a camera, stream or Y4M on stdin in; OSC/VMC, Live Link Face, JSON out in real time.
+    Live(cmd_live::Args),
     /// Make a synthetic ground-truth video from a real face photo.
     Synth(cmd_synth::Args),
     /// What the 68 landmarks see of a rig's shapes, and the priors capture solves with.
@@ -88,6 +92,7 @@ fn main() -> std::process::ExitCode {
         Command::Capture(a) => cmd_capture::run(a),
         Command::Batch(a) => cmd_batch::run(a),
         Command::Synth(a) => cmd_synth::run(a),
+        Command::Live(a) => cmd_live::run(a),
         Command::Rig(a) => cmd_rig::run(a),
     };
     match result {

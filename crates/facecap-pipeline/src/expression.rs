@@ -155,6 +155,45 @@ pub struct ExpressionSink<'a> {
     gaze: Gaze,
     /// The rig's `eyeBlink*` shapes (see [`BLINK_GAIN`]).
     blink_idx: Vec<usize>,
+    /// Neutral calibration on the fly (live input), see [`ExpressionSink::with_live_neutral`].
+    live: Option<LiveNeutralState>,
+}
+
+/// When a live run takes the subject's neutral: the `window` seconds of tracked frames
+/// that start `after` seconds into the stream, and again (the next `window` seconds)
+/// whenever `redo` is set.
+#[derive(Debug, Clone)]
+pub struct LiveNeutral {
+    /// Seconds from the first tracked face to the start of the window (>= 0).
+    pub after: f64,
+    /// Length of the resting window in seconds (> 0).
+    pub window: f64,
+    /// Set to take the neutral again from the next frames (cleared when taken up).
+    pub redo: Arc<std::sync::atomic::AtomicBool>,
+}
+
+/// Fewest tracked frames a live neutral window needs.
+pub const LIVE_NEUTRAL_MIN_FRAMES: usize = 5;
+
+/// A neutral fit running on its own thread: (calibration number, first and last frame,
+/// frames) and the channel its solver comes back on.
+type PendingNeutral = (
+    (u32, u64, u64, usize),
+    std::sync::mpsc::Receiver<Result<(AnySolver, serde_json::Value)>>,
+);
+
+struct LiveNeutralState {
+    cal: Arc<dyn NeutralCalibration>,
+    params: LiveNeutral,
+    /// Stream time of the first tracked face of the current attempt.
+    start: Option<f64>,
+    frames: Vec<(u64, Landmarks68)>,
+    /// A calibration is being collected.
+    collecting: bool,
+    /// Calibrations started so far.
+    taken: u32,
+    /// The fit in progress.
+    pending: Option<PendingNeutral>,
 }
 
 /// The gaze shapes (`eyeLook*`) from the iris centres against the subject's resting
@@ -291,7 +330,151 @@ impl<'a> ExpressionSink<'a> {
                 .filter(|(_, n)| facecap_solve::observability::split_side(n).0 == "eyeBlink")
                 .map(|(k, _)| k)
                 .collect(),
+            live: None,
         })
+    }
+
+    /// Calibrates the subject's neutral while frames stream (live input): frames are
+    /// solved at once with the generic rig; once the window of [`LiveNeutral`] is full,
+    /// `cal` fits the neutral on it and the following frames are solved with the
+    /// calibrated rig; setting [`LiveNeutral::redo`] takes it again. The fit runs on its
+    /// own thread, so no frame waits for it: frames are solved with the previous rig
+    /// until it is done. Use with a sink created without a `calibration` (which would
+    /// wait for the whole clip).
+    ///
+    /// # Errors
+    /// A negative or non-finite `after`, a `window` that is not > 0, or a sink created
+    /// with a whole-clip calibration.
+    pub fn with_live_neutral(mut self, cal: Arc<dyn NeutralCalibration>, params: LiveNeutral) -> Result<Self> {
+        if !(params.after.is_finite() && params.after >= 0.0) {
+            return Err(Error::invalid(
+                "neutral after (s)",
+                params.after,
+                "a finite number >= 0",
+            ));
+        }
+        if !(params.window.is_finite() && params.window > 0.0) {
+            return Err(Error::invalid(
+                "neutral window (s)",
+                params.window,
+                "a finite number > 0",
+            ));
+        }
+        if self.calibration.is_some() {
+            return Err(Error::invalid(
+                "calibration",
+                "whole clip",
+                "no whole-clip calibration together with a live one",
+            ));
+        }
+        self.live = Some(LiveNeutralState {
+            cal,
+            params,
+            start: None,
+            frames: Vec::new(),
+            collecting: true,
+            taken: 0,
+            pending: None,
+        });
+        Ok(self)
+    }
+
+    /// The last frame solved (each call of [`Sink::frame`] solves its frame at once
+    /// unless a whole-clip calibration buffers them).
+    pub fn last_frame(&self) -> Option<&SolvedFrame> {
+        self.result.frames.last()
+    }
+
+    /// The blendshape names (rig order).
+    pub fn names(&self) -> &[String] {
+        &self.result.names
+    }
+
+    /// The neutral calibrations so far (`null`, or a list for live calibrations).
+    pub fn neutral_report(&self) -> &serde_json::Value {
+        &self.result.neutral_report
+    }
+
+    /// How many live neutral calibrations were applied so far.
+    pub fn live_neutrals_taken(&self) -> u32 {
+        match &self.result.neutral_report {
+            serde_json::Value::Array(a) => a.iter().filter(|e| e.get("report").is_some()).count() as u32,
+            _ => 0,
+        }
+    }
+
+    /// Collects the live neutral window, starts the fit when it is full, and returns the
+    /// calibrated solver once the fit is done. A failed fit is reported in
+    /// `neutral_report` and the run goes on with the rig it had.
+    fn live_neutral(&mut self, face: &TrackedFace) -> Result<Option<Solving>> {
+        let camera = solver_camera(self.camera)?;
+        let Some(live) = self.live.as_mut() else {
+            return Ok(None);
+        };
+        if let Some(((taken, first, last, n), rx)) = &live.pending {
+            let outcome = match rx.try_recv() {
+                Err(std::sync::mpsc::TryRecvError::Empty) => return Ok(None),
+                Err(std::sync::mpsc::TryRecvError::Disconnected) => Err("the calibration thread stopped".to_string()),
+                Ok(r) => r.map_err(|e| e.to_string()),
+            };
+            let mut entry = serde_json::json!({
+                "calibration": taken, "first_frame": first, "last_frame": last, "frames": n,
+                "applied_from_frame": face.index,
+            });
+            let solver = match outcome {
+                Ok((solver, report)) => {
+                    entry["report"] = report;
+                    Some(Solving::new(solver))
+                }
+                Err(e) => {
+                    entry["error"] = serde_json::json!(e);
+                    None
+                }
+            };
+            live.pending = None;
+            match &mut self.result.neutral_report {
+                serde_json::Value::Array(a) => a.push(entry),
+                other => *other = serde_json::Value::Array(vec![entry]),
+            }
+            return Ok(solver);
+        }
+        if live.params.redo.swap(false, std::sync::atomic::Ordering::SeqCst) {
+            live.collecting = true;
+            live.start = Some(face.timestamp - live.params.after);
+            live.frames.clear();
+        }
+        if !live.collecting {
+            return Ok(None);
+        }
+        let Some(l) = &face.landmarks else { return Ok(None) };
+        let start = *live.start.get_or_insert(face.timestamp);
+        let t = face.timestamp - start;
+        if t < live.params.after {
+            return Ok(None);
+        }
+        live.frames.push((face.index, l.clone()));
+        if t < live.params.after + live.params.window || live.frames.len() < LIVE_NEUTRAL_MIN_FRAMES {
+            return Ok(None);
+        }
+        let frames = std::mem::take(&mut live.frames);
+        live.collecting = false;
+        live.taken += 1;
+        let key = (
+            live.taken,
+            frames.first().map_or(0, |f| f.0),
+            frames.last().map_or(0, |f| f.0),
+            frames.len(),
+        );
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (cal, setup) = (live.cal.clone(), self.setup.clone());
+        std::thread::Builder::new()
+            .name("facecap-live-neutral".into())
+            .spawn(move || {
+                let _ = tx.send(build_expression_solve(&setup, camera, Some((cal.as_ref(), &frames))));
+            })
+            .map_err(|e| Error::invalid("neutral calibration thread", e, "a thread the system can start"))?;
+        live.pending = Some((key, rx));
+        Ok(None)
     }
 
     /// Commits both CSVs and returns the solved frames.
@@ -449,8 +632,15 @@ impl Sink for ExpressionSink<'_> {
         match self.solving.take() {
             Some(mut sv) => {
                 let r = self.solve_one(&mut sv, face);
+                let calibrated = match r {
+                    Ok(()) => self.live_neutral(face),
+                    Err(e) => Err(e),
+                };
                 self.solving = Some(sv);
-                r
+                if let Some(new) = calibrated? {
+                    self.solving = Some(new);
+                }
+                Ok(())
             }
             None => {
                 self.buffered.push(face.clone());

@@ -22,6 +22,10 @@
 //! ([`tensor_fit`]); `solve` replays a landmarks CSV ([`replay`]) into the same
 //! expression sink as `capture`, so both write the same `pose.csv` and `weights.csv`.
 //!
+//! `live` reads a camera, a stream or stdin newest-first ([`live::LatestFrame`], with
+//! [`Queues::LIVE`]) into a [`LiveSink`] that solves each frame with the same
+//! [`ExpressionSink`] and sends it at once (OSC/VMC, Live Link Face, JSON; [`net`]).
+//!
 //! **Adding a source**: implement [`facecap_core::video::FrameSource`] (a camera, a
 //! stream) and pass it to [`VideoTracker::run`]. **Adding a sink**: implement
 //! [`Sink`] (`frame` per tracked frame, in order; `end` after the last), and give it to
@@ -40,8 +44,10 @@
 pub mod batch;
 pub mod error;
 pub mod expression;
+pub mod live;
 pub mod livelink;
 pub mod muscle;
+pub mod net;
 pub mod openface;
 pub mod outputs;
 pub mod resume;
@@ -53,11 +59,13 @@ pub mod tracker;
 
 pub use error::{Error, Result};
 pub use expression::{
-    build_expression_solve, Calibrated, ExpressionResult, ExpressionSetup, ExpressionSink, NeutralCalibration,
-    SolvedFrame,
+    build_expression_solve, Calibrated, ExpressionResult, ExpressionSetup, ExpressionSink, LiveNeutral,
+    NeutralCalibration, SolvedFrame,
 };
+pub use live::{open_live, LatestFrame, LiveInput};
 pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
+pub use net::{LiveOutputs, LiveSink};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};
-pub use tracker::{open_video, replay, RunControl, RunReport, TrackerPolicy, VideoTracker};
+pub use tracker::{open_video, replay, Queues, RunControl, RunReport, TrackerPolicy, VideoTracker};

@@ -29,6 +29,27 @@ use crate::sink::{Sink, TrackedFace};
 const DECODED_QUEUE: usize = 4;
 /// Queue length between tracking and the sinks (frames).
 const TRACKED_QUEUE: usize = 16;
+/// Queue lengths between the stages of [`VideoTracker::run_with_queues`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Queues {
+    /// Decoded frames waiting for the tracker.
+    pub decoded: usize,
+    /// Tracked frames waiting for the sinks.
+    pub tracked: usize,
+}
+
+impl Queues {
+    /// Files: short FIFO queues so the stages overlap (4 decoded, 16 tracked frames).
+    pub const FILE: Queues = Queues {
+        decoded: DECODED_QUEUE,
+        tracked: TRACKED_QUEUE,
+    };
+    /// Live input: no queue at all (each stage hands a frame straight to the next), so
+    /// no frame waits behind another; with a source that keeps only the newest frame
+    /// ([`crate::live::LatestFrame`]) the delay cannot grow.
+    pub const LIVE: Queues = Queues { decoded: 0, tracked: 0 };
+}
+
 /// Largest number of sinks in one run (one bit each in [`Tracked::wanted`]).
 pub const MAX_SINKS: usize = 64;
 
@@ -184,9 +205,24 @@ impl VideoTracker {
     /// and decoding, in that order.
     pub fn run(
         &self,
+        source: Box<dyn FrameSource>,
+        sinks: &mut [&mut dyn Sink],
+        control: &mut RunControl<'_>,
+    ) -> Result<RunReport> {
+        self.run_with_queues(source, sinks, control, Queues::FILE)
+    }
+
+    /// [`VideoTracker::run`] with the given queue lengths between the stages
+    /// ([`Queues::LIVE`] for live input).
+    ///
+    /// # Errors
+    /// As [`VideoTracker::run`].
+    pub fn run_with_queues(
+        &self,
         mut source: Box<dyn FrameSource>,
         sinks: &mut [&mut dyn Sink],
         control: &mut RunControl<'_>,
+        queues: Queues,
     ) -> Result<RunReport> {
         let info = source.info().clone();
         if sinks.len() > MAX_SINKS {
@@ -198,9 +234,9 @@ impl VideoTracker {
         let mut iris_ws = self.iris.new_workspace();
         let mut iris_frame = IrisFrame::default();
         let iris_estimator = &self.iris;
-        let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(DECODED_QUEUE);
+        let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(queues.decoded);
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
-        let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(TRACKED_QUEUE);
+        let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(queues.tracked);
         let tracker = &self.tracker;
         let mut ws = tracker.new_workspace();
         let mut state = TrackerState::new();
