@@ -99,10 +99,10 @@ do not use it (report it)."
 }
 
 # ---------------------------------------------------------------- apt packages
-APT_PACKAGES=(ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl)
+APT_PACKAGES=(ffmpeg chromium libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl)
 # A package counts as present if dpkg has it or, for tools, the command exists (e.g.
 # NodeSource's nodejs ships npm, and Debian's npm package would conflict with it).
-declare -A APT_COMMAND=([ffmpeg]=ffmpeg [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl)
+declare -A APT_COMMAND=([ffmpeg]=ffmpeg [chromium]=chromium [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   if dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then continue; fi

@@ -43,6 +43,8 @@ pub mod livelink;
 pub mod muscle;
 pub mod openface;
 pub mod outputs;
+pub mod preview;
+pub mod render;
 pub mod sink;
 pub mod sinks;
 pub mod tensor;
@@ -54,6 +56,8 @@ pub use expression::{
     build_expression_solve, Calibrated, ExpressionResult, ExpressionSetup, ExpressionSink, NeutralCalibration,
     SolvedFrame,
 };
+pub use preview::{write_preview, PreviewParams, PreviewReport};
+pub use render::{RenderWorkspace, RigRenderer, View};
 pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
