@@ -44,7 +44,7 @@ pub const LANDMARK_COLOUR: [u8; 3] = [60, 230, 90];
 ///
 /// | name | default | meaning | range |
 /// |---|---|---|---|
-/// | `max_height` | 480 | frames taller than this are scaled down to it (pixels) | 64..=2160 |
+/// | `max_height` | 360 | frames taller than this are scaled down to it (pixels) | 64..=2160 |
 /// | `decode_threads` | 1 | ffmpeg decoder threads for the second pass | any (0 = ffmpeg's choice) |
 /// | `encoder` | [`EncoderParams::default`] (`fps` is set from the video) | x264 settings | |
 #[derive(Debug, Clone, PartialEq)]
@@ -60,7 +60,7 @@ pub struct PreviewParams {
 impl Default for PreviewParams {
     fn default() -> Self {
         PreviewParams {
-            max_height: 480,
+            max_height: 360,
             decode_threads: 1,
             encoder: EncoderParams::default(),
         }
@@ -287,70 +287,105 @@ pub fn write_preview(
     let rows = (layout.size.1.saturating_sub(24) / BAR_ROW) as usize;
     let shown = shapes_to_show(frames, renderer.num_shapes(), rows);
     let batch = (2 * rayon::current_num_threads()).max(4);
-    let (mut decode_s, mut render_s, mut encode_s) = (0.0, 0.0, 0.0);
+    let (mut decode_s, mut render_s) = (0.0, 0.0);
     let mut next = 0usize;
     let mut kept = Vec::new();
-    loop {
-        if interrupted.is_some_and(|f| f.load(Ordering::SeqCst)) {
-            return Err(Error::Interrupted { frame: next as u64 });
-        }
-        let t = Instant::now();
-        let mut decoded = Vec::with_capacity(batch);
-        for _ in 0..batch {
-            let mut fr = Frame::default();
-            if !source.read_into(&mut fr)? {
-                break;
+    // Frames go to ffmpeg from their own thread, so encoding overlaps decoding and
+    // rendering the next batch.
+    let (tx, rx) = std::sync::mpsc::sync_channel::<RgbImage>(batch);
+    let abort = AtomicBool::new(false);
+    let abort_ref = &abort;
+    let (loop_result, written) = std::thread::scope(|scope| {
+        let writer = scope.spawn(move || -> Result<(u64, f64)> {
+            let mut busy = 0.0;
+            for img in rx {
+                let t = Instant::now();
+                encoder.write_frame(&img)?;
+                busy += t.elapsed().as_secs_f64();
             }
-            decoded.push(fr);
-        }
-        decode_s += t.elapsed().as_secs_f64();
-        if decoded.is_empty() {
-            break;
-        }
-        for (k, fr) in decoded.iter().enumerate() {
-            if keep.contains(&fr.index) {
-                if let Some(rgb) = &fr.rgb {
-                    kept.push((fr.index, rgb.clone()));
+            if abort_ref.load(Ordering::SeqCst) {
+                // dropped unfinished: ffmpeg is stopped and nothing is published
+                return Ok((0, busy));
+            }
+            let t = Instant::now();
+            let n = encoder.finish()?;
+            Ok((n, busy + t.elapsed().as_secs_f64()))
+        });
+        let loop_result = (|| -> Result<()> {
+            loop {
+                if interrupted.is_some_and(|f| f.load(Ordering::SeqCst)) {
+                    return Err(Error::Interrupted { frame: next as u64 });
                 }
+                let t = Instant::now();
+                let mut decoded = Vec::with_capacity(batch);
+                for _ in 0..batch {
+                    let mut fr = Frame::default();
+                    if !source.read_into(&mut fr)? {
+                        break;
+                    }
+                    decoded.push(fr);
+                }
+                decode_s += t.elapsed().as_secs_f64();
+                if decoded.is_empty() {
+                    break;
+                }
+                for (k, fr) in decoded.iter().enumerate() {
+                    if keep.contains(&fr.index) {
+                        if let Some(rgb) = &fr.rgb {
+                            kept.push((fr.index, rgb.clone()));
+                        }
+                    }
+                    let solved = frames.get(next + k);
+                    if solved.map(|s| s.index) != Some(fr.index) {
+                        return Err(Error::invalid(
+                            "preview frames",
+                            format!("video frame {} has no solved frame", fr.index),
+                            format!("the {} frames of the solve, in order", frames.len()),
+                        ));
+                    }
+                }
+                let t = Instant::now();
+                let rendered: Vec<Result<RgbImage>> = decoded
+                    .par_iter()
+                    .enumerate()
+                    .map_init(RenderWorkspace::default, |ws, (k, fr)| {
+                        let rgb = fr.rgb.as_ref().ok_or_else(|| {
+                            Error::invalid("preview source", "no colour frames", "a source that decodes RGB")
+                        })?;
+                        compose_frame(rgb, &frames[next + k], renderer, camera, names, &shown, &layout, ws)
+                    })
+                    .collect();
+                render_s += t.elapsed().as_secs_f64();
+                for img in rendered {
+                    if tx.send(img?).is_err() {
+                        // the writer stopped: its error is reported below
+                        return Ok(());
+                    }
+                }
+                next += decoded.len();
             }
-            let solved = frames.get(next + k);
-            if solved.map(|s| s.index) != Some(fr.index) {
+            if next != frames.len() {
                 return Err(Error::invalid(
                     "preview frames",
-                    format!("video frame {} has no solved frame", fr.index),
-                    format!("the {} frames of the solve, in order", frames.len()),
+                    format!("{next} frames decoded"),
+                    format!("the {} frames of the solve", frames.len()),
                 ));
             }
-        }
-        let t = Instant::now();
-        let rendered: Vec<Result<RgbImage>> = decoded
-            .par_iter()
-            .enumerate()
-            .map_init(RenderWorkspace::default, |ws, (k, fr)| {
-                let rgb = fr.rgb.as_ref().ok_or_else(|| {
-                    Error::invalid("preview source", "no colour frames", "a source that decodes RGB")
-                })?;
-                compose_frame(rgb, &frames[next + k], renderer, camera, names, &shown, &layout, ws)
-            })
-            .collect();
-        render_s += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        for img in rendered {
-            encoder.write_frame(&img?)?;
-        }
-        encode_s += t.elapsed().as_secs_f64();
-        next += decoded.len();
-    }
-    if next != frames.len() {
-        return Err(Error::invalid(
-            "preview frames",
-            format!("{next} frames decoded"),
-            format!("the {} frames of the solve", frames.len()),
-        ));
-    }
-    let t = Instant::now();
-    let written = encoder.finish()?;
-    encode_s += t.elapsed().as_secs_f64();
+            Ok(())
+        })();
+        let finished = if loop_result.is_ok() {
+            drop(tx);
+            writer.join().unwrap_or(Err(Error::StagePanicked { stage: "preview encoding" }))
+        } else {
+            abort.store(true, Ordering::SeqCst);
+            drop(tx);
+            let _ = writer.join();
+            Ok((0, 0.0))
+        };
+        (loop_result, finished)
+    });
+    loop_result?;
+    let (written, encode_s) = written?;
     let report = PreviewReport {
         frames: written,
         width: layout.size.0,

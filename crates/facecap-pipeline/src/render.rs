@@ -34,15 +34,20 @@ const SKIN: [f32; 3] = [0.86, 0.70, 0.60];
 /// Lip albedo.
 const LIPS: [f32; 3] = [0.72, 0.36, 0.38];
 /// Eye-opening albedo.
-const EYES: [f32; 3] = [0.30, 0.24, 0.24];
+const EYES: [f32; 3] = [0.58, 0.46, 0.44];
+/// Tint of the mesh drawn over a video frame ([`View::Camera`]), mixed into the albedo
+/// by [`OVERLAY_TINT_MIX`] so the overlay stands out from the skin under it.
+const OVERLAY_TINT: [f32; 3] = [0.35, 0.65, 1.0];
+/// Fraction of [`OVERLAY_TINT`] in the overlay's albedo.
+const OVERLAY_TINT_MIX: f32 = 0.6;
 /// Brow albedo.
 const BROWS: [f32; 3] = [0.42, 0.30, 0.24];
 /// Mouth cavity colour.
 const MOUTH: [u8; 3] = [58, 18, 24];
 /// Ambient light fraction.
 const AMBIENT: f32 = 0.28;
-/// Specular strength and exponent (Blinn-Phong).
-const SPECULAR: (f32, f32) = (0.10, 24.0);
+/// Specular strength (Blinn-Phong, exponent 16: four squarings).
+const SPECULAR: f32 = 0.10;
 /// Brow band half-width, as a fraction of the inter-ocular distance.
 const BROW_BAND: f64 = 0.09;
 /// Portrait fill: the neutral's radius covers this fraction of half the image.
@@ -384,11 +389,18 @@ impl RigRenderer {
             }
             let diffuse = nrm.dot(&light).max(0.0);
             let half = (light + eye).normalize();
-            let spec = SPECULAR.0 * nrm.dot(&half).max(0.0).powf(SPECULAR.1);
+            let mut spec = nrm.dot(&half).max(0.0);
+            for _ in 0..4 {
+                spec *= spec;
+            }
+            spec *= SPECULAR;
             let (ca, cb, cc) = (self.colours[a], self.colours[b], self.colours[c]);
             let px = img.get_pixel_mut(x as u32, y as u32);
             for ch in 0..3 {
-                let albedo = ca[ch] * w0 + cb[ch] * w1 + cc[ch] * w2;
+                let mut albedo = ca[ch] * w0 + cb[ch] * w1 + cc[ch] * w2;
+                if !is_ortho {
+                    albedo += OVERLAY_TINT_MIX * (OVERLAY_TINT[ch] - albedo);
+                }
                 let v = (albedo * (AMBIENT + (1.0 - AMBIENT) * diffuse) + spec).min(1.0) * 255.0;
                 px.0[ch] = (alpha * v + (1.0 - alpha) * f32::from(px.0[ch])).round() as u8;
             }
@@ -469,6 +481,9 @@ pub fn draw_text(img: &mut RgbImage, text: &str, x: i64, y: i64, scale: u32, col
     }
 }
 
+/// Characters of a shape name shown by [`draw_weight_bars`].
+const LABEL_CHARS: usize = 17;
+
 /// Row height of [`draw_weight_bars`], pixels.
 pub const BAR_ROW: u32 = 15;
 
@@ -482,7 +497,7 @@ pub fn draw_weight_bars(
     weights: &[f64],
     shown: &[usize],
 ) {
-    let label_w = 8 * 15;
+    let label_w = 8 * LABEL_CHARS as u32;
     let bar_w = width.saturating_sub(label_w + 8 * 5 + 8);
     let rows = (height / BAR_ROW) as usize;
     for (r, &k) in shown.iter().take(rows).enumerate() {
@@ -490,7 +505,7 @@ pub fn draw_weight_bars(
             continue;
         };
         let y = y0 + r as u32 * BAR_ROW;
-        let label: String = name.chars().take(15).collect();
+        let label: String = name.chars().take(LABEL_CHARS).collect();
         draw_text(img, &label, i64::from(x0), i64::from(y + 3), 1, [40, 40, 40]);
         let bx = x0 + label_w + 4;
         for yy in y + 2..y + BAR_ROW - 2 {
