@@ -4,15 +4,19 @@
 //! * **Neutral landmarks**: a 68-point 3D mean face (iBUG order, centimetres, +Y up,
 //!   +Z out of the face). The numbers are the 68 landmark vertices of the ICT-FaceKit
 //!   generic neutral mesh (USC ICT, MIT licence), rounded to 0.1 mm.
-//! * **Dense mesh**: the 68 points are Delaunay-triangulated in the frontal (x, y)
-//!   plane, each triangle is split 4-to-1 twice (16 triangles each), and every new
-//!   vertex gets its depth from a thin-plate spline through the 68 landmarks, so the
-//!   surface is smooth and passes exactly through the landmarks. Vertices 0..67 are the
-//!   landmarks themselves, so the landmark map is the identity.
+//! * **Dense mesh**: the 68 points and seven forehead/temple points are
+//!   Delaunay-triangulated in the frontal (x, y) plane, the triangles inside the inner
+//!   lip contour are left out (the mouth opening), each triangle is split 4-to-1 twice
+//!   (16 triangles each), and every new vertex gets its depth from a thin-plate spline
+//!   through those points, so the surface is smooth and passes exactly through the
+//!   landmarks. Vertices 0..67 are the landmarks themselves, so the landmark map is the
+//!   identity.
 //! * **Blendshapes**: 16 ARKit-named expression shapes (`jawOpen`, `mouthSmileLeft`, ...)
 //!   defined as 3D displacements of the 68 landmarks (FACS-style: which points move,
-//!   which way, by how many cm) and spread over the dense mesh by the same thin-plate
-//!   spline, so each shape is a smooth displacement field. "Left" is the subject's left
+//!   which way, by how many cm), spread piecewise-linearly over the landmark triangles
+//!   (a subdivision vertex moves as the mean of its edge's ends; a spline overshoots
+//!   between the nearly touching lips and folds the mesh when the mouth opens); the
+//!   forehead points stay. "Left" is the subject's left
 //!   (image right, +X).
 
 use facecap_core::landmark_map::LandmarkMap;
