@@ -724,7 +724,11 @@ fn write_report(
                 .collect()
         })
         .collect();
-    let peak = |v: &[f64]| v.iter().filter(|x| x.is_finite()).fold(f64::NEG_INFINITY, |m, &x| m.max(x));
+    let peak = |v: &[f64]| {
+        v.iter()
+            .filter(|x| x.is_finite())
+            .fold(f64::NEG_INFINITY, |m, &x| m.max(x))
+    };
     let (active, idle): (Vec<usize>, Vec<usize>) =
         (0..names.len()).partition(|&k| peak(&series[k]) > report::ACTIVE_WEIGHT);
     let curves: Vec<report::ShapeCurve> = active
@@ -787,7 +791,13 @@ fn write_report(
     });
     let pose_rows: Vec<[f64; 6]> = frames
         .iter()
-        .map(|f| if f.success { pose_row(f.pose.as_ref()) } else { [f64::NAN; 6] })
+        .map(|f| {
+            if f.success {
+                pose_row(f.pose.as_ref())
+            } else {
+                [f64::NAN; 6]
+            }
+        })
         .collect();
     let has_pose = pose_rows.iter().any(|r| r[3].is_finite());
     let no_pose = if frames.iter().any(|f| f.success) {

@@ -260,7 +260,6 @@ pub fn write_report_html(
     Ok(())
 }
 
-
 // ------------------------------------------------------------------------------------
 // The capture report: plots drawn with `plotters` (SVG backend), page assembled here.
 
@@ -469,8 +468,12 @@ pub fn lines_svg(
             )
             .map_err(plot_err)?;
         if empty {
-            root.draw(&Text::new(empty_reason.to_string(), (80, (h / 2) as i32), ("sans-serif", 15)))
-                .map_err(plot_err)?;
+            root.draw(&Text::new(
+                empty_reason.to_string(),
+                (80, (h / 2) as i32),
+                ("sans-serif", 15),
+            ))
+            .map_err(plot_err)?;
         }
         for (k, (name, v)) in series.iter().enumerate() {
             let colour = COLOURS[k % COLOURS.len()];
@@ -636,9 +639,19 @@ pub fn write_capture_html(
     }
     html.push_str("</div>");
     for s in sections {
-        let _ = write!(html, "<h2>{}</h2><p class=\"note\">{}</p>", escape(&s.title), escape(&s.note));
+        let _ = write!(
+            html,
+            "<h2>{}</h2><p class=\"note\">{}</p>",
+            escape(&s.title),
+            escape(&s.note)
+        );
         if let Some(p) = &s.plot {
-            let _ = write!(html, "<div><img src=\"{}\" alt=\"{}\"></div>", escape(p), escape(&s.title));
+            let _ = write!(
+                html,
+                "<div><img src=\"{}\" alt=\"{}\"></div>",
+                escape(p),
+                escape(&s.title)
+            );
         }
     }
     html.push_str("</body></html>\n");
@@ -698,16 +711,35 @@ mod tests {
         let spans = lost_spans(&times, &ok);
         assert_eq!(spans.len(), 2);
         assert!((spans[0].0 - 0.05).abs() < 1e-9 && (spans[0].1 - 0.25).abs() < 1e-9);
-        let v: Vec<f64> = times.iter().zip(&ok).map(|(t, &g)| if g { *t } else { f64::NAN }).collect();
+        let v: Vec<f64> = times
+            .iter()
+            .zip(&ok)
+            .map(|(t, &g)| if g { *t } else { f64::NAN })
+            .collect();
         let curves = vec![
-            ShapeCurve { name: "jawOpen".into(), values: v.clone(), reference: Some(vec![0.5; 10]) },
-            ShapeCurve { name: "mouthPucker".into(), values: vec![f64::NAN; 10], reference: None },
+            ShapeCurve {
+                name: "jawOpen".into(),
+                values: v.clone(),
+                reference: Some(vec![0.5; 10]),
+            },
+            ShapeCurve {
+                name: "mouthPucker".into(),
+                values: vec![f64::NAN; 10],
+                reference: None,
+            },
         ];
         let svg = small_multiples_svg(&times, &curves, &spans, (0.0, 1.0), 4).unwrap();
         assert!(svg.contains("jawOpen") && svg.contains("no solved frame"));
         // Lost frames are shaded: the shade colour appears (once per span per plot).
         assert!(svg.matches("#CDCDCD").count() >= 4, "{}", &svg[..400.min(svg.len())]);
-        let empty = lines_svg(&times, &[("yaw".into(), vec![f64::NAN; 10])], &[], "deg", "no head pose").unwrap();
+        let empty = lines_svg(
+            &times,
+            &[("yaw".into(), vec![f64::NAN; 10])],
+            &[],
+            "deg",
+            "no head pose",
+        )
+        .unwrap();
         assert!(empty.contains("no head pose"));
     }
 
@@ -715,7 +747,11 @@ mod tests {
     fn reference_columns_by_arkit_name() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("mp.csv");
-        std::fs::write(&p, "frame,success,_neutral,eyeBlinkLeft,jawOpen\n0,1,0,0.25,0.5\n1,0,0,0,0\n2,1,0,0.75,0.1\n").unwrap();
+        std::fs::write(
+            &p,
+            "frame,success,_neutral,eyeBlinkLeft,jawOpen\n0,1,0,0.25,0.5\n1,0,0,0,0\n2,1,0,0.75,0.1\n",
+        )
+        .unwrap();
         let names = vec!["eyeBlink_L".to_string(), "jawOpen".into(), "cheekPuffy".into()];
         let r = read_reference(&p, &names, &[0, 1, 2]).unwrap();
         assert_eq!(r[0].as_ref().unwrap()[0], 0.25);

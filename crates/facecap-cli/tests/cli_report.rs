@@ -134,7 +134,14 @@ fn report_loads_and_its_video_plays_in_headless_chromium() {
     let dir = tempfile::tempdir().unwrap();
     let synth = dir.path().join("synth");
     let st = facecap()
-        .args(["synth", "--frames", &FRAMES.to_string(), "--fps", &FPS.to_string(), "--out"])
+        .args([
+            "synth",
+            "--frames",
+            &FRAMES.to_string(),
+            "--fps",
+            &FPS.to_string(),
+            "--out",
+        ])
         .arg(&synth)
         .arg("--photo")
         .arg(&photo)
@@ -174,7 +181,11 @@ fn report_loads_and_its_video_plays_in_headless_chromium() {
         .to_rgb8();
     assert_eq!(img.width(), 1400);
     let colours: std::collections::HashSet<[u8; 3]> = img.pixels().step_by(7).map(|p| p.0).collect();
-    assert!(colours.len() > 500, "the screenshot looks blank ({} colours)", colours.len());
+    assert!(
+        colours.len() > 500,
+        "the screenshot looks blank ({} colours)",
+        colours.len()
+    );
     if let Some(d) = std::env::var_os("FACECAP_DEBUG_DIR") {
         std::fs::copy(&shot, Path::new(&d).join("report_screenshot.png")).unwrap();
     }
@@ -201,12 +212,18 @@ fn report_loads_and_its_video_plays_in_headless_chromium() {
     assert_eq!(res["errors"].as_array().map(Vec::len), Some(0), "{res}");
     let images = res["images"].as_array().unwrap();
     assert!(images.len() >= 5, "{res}");
-    assert!(images.iter().all(|i| i["ok"] == true), "images that did not load: {res}");
+    assert!(
+        images.iter().all(|i| i["ok"] == true),
+        "images that did not load: {res}"
+    );
     let duration = res["duration"].as_f64().unwrap();
     let clip = f64::from(FRAMES) / FPS;
     assert!(
         (duration - clip).abs() <= 0.5 / FPS + 1e-3,
         "video lasts {duration} s, the clip {clip} s"
     );
-    assert!(res["currentTime"].as_f64().unwrap() > 0.0 && res["paused"] == false, "{res}");
+    assert!(
+        res["currentTime"].as_f64().unwrap() > 0.0 && res["paused"] == false,
+        "{res}"
+    );
 }

@@ -56,9 +56,9 @@ pub use expression::{
     build_expression_solve, Calibrated, ExpressionResult, ExpressionSetup, ExpressionSink, NeutralCalibration,
     SolvedFrame,
 };
+pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use preview::{write_preview, PreviewParams, PreviewReport};
 pub use render::{RenderWorkspace, RigRenderer, View};
-pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};

@@ -198,7 +198,7 @@ pub fn compose_frame(
 ) -> Result<RgbImage> {
     let mut out = RgbImage::from_pixel(layout.size.0, layout.size.1, Rgb([255, 255, 255]));
     let mut frame = if layout.scale < 1.0 {
-        image::imageops::resize(rgb, layout.frame.0, layout.frame.1, image::imageops::FilterType::Triangle)
+        crate::render::scale_bilinear(rgb, layout.frame.0, layout.frame.1)
     } else {
         rgb.clone()
     };
@@ -222,7 +222,11 @@ pub fn compose_frame(
         1.0,
         ws,
     )?;
-    let caption = if f.success { "rig: solved weights + head" } else { "rig: last solved frame" };
+    let caption = if f.success {
+        "rig: solved weights + head"
+    } else {
+        "rig: last solved frame"
+    };
     draw_text(&mut panel, caption, 6, 6, 1, [60, 60, 60]);
     image::imageops::overlay(&mut out, &panel, i64::from(layout.frame.0), 0);
     let bx = layout.frame.0 + layout.panel + 8;
@@ -258,7 +262,11 @@ pub fn write_preview(
     interrupted: Option<&AtomicBool>,
 ) -> Result<(PreviewReport, Vec<(u64, RgbImage)>)> {
     if !(64..=2160).contains(&params.max_height) {
-        return Err(Error::invalid("preview max_height", params.max_height, "64..=2160 pixels"));
+        return Err(Error::invalid(
+            "preview max_height",
+            params.max_height,
+            "64..=2160 pixels",
+        ));
     }
     let mut source = open_source(
         video,
@@ -375,7 +383,9 @@ pub fn write_preview(
         })();
         let finished = if loop_result.is_ok() {
             drop(tx);
-            writer.join().unwrap_or(Err(Error::StagePanicked { stage: "preview encoding" }))
+            writer.join().unwrap_or(Err(Error::StagePanicked {
+                stage: "preview encoding",
+            }))
         } else {
             abort.store(true, Ordering::SeqCst);
             drop(tx);

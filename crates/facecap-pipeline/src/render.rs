@@ -168,10 +168,7 @@ impl RigRenderer {
                 let (p2, zmin) = (xy(poly), front_of(poly));
                 let ex = exclude.map(xy);
                 for (c, p) in colours.iter_mut().zip(&pos) {
-                    if p.z >= zmin
-                        && inside(&p2, p.x, p.y)
-                        && !ex.as_ref().is_some_and(|e| inside(e, p.x, p.y))
-                    {
+                    if p.z >= zmin && inside(&p2, p.x, p.y) && !ex.as_ref().is_some_and(|e| inside(e, p.x, p.y)) {
                         *c = colour;
                     }
                 }
@@ -402,7 +399,8 @@ impl RigRenderer {
                     albedo += OVERLAY_TINT_MIX * (OVERLAY_TINT[ch] - albedo);
                 }
                 let v = (albedo * (AMBIENT + (1.0 - AMBIENT) * diffuse) + spec).min(1.0) * 255.0;
-                px.0[ch] = (alpha * v + (1.0 - alpha) * f32::from(px.0[ch])).round() as u8;
+                // non-negative: +0.5 and truncation round to nearest
+                px.0[ch] = (alpha * v + (1.0 - alpha) * f32::from(px.0[ch]) + 0.5) as u8;
             }
         }
         Ok(())
@@ -413,19 +411,55 @@ impl RigRenderer {
 fn fill_polygon(img: &mut RgbImage, poly: &[(f64, f64)], colour: [u8; 3], alpha: f32) {
     let (w, h) = (img.width() as i64, img.height() as i64);
     let miny = poly.iter().map(|p| p.1).fold(f64::INFINITY, f64::min).floor().max(0.0) as i64;
-    let maxy = poly.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max).ceil().min(h as f64 - 1.0) as i64;
+    let maxy = poly
+        .iter()
+        .map(|p| p.1)
+        .fold(f64::NEG_INFINITY, f64::max)
+        .ceil()
+        .min(h as f64 - 1.0) as i64;
     let minx = poly.iter().map(|p| p.0).fold(f64::INFINITY, f64::min).floor().max(0.0) as i64;
-    let maxx = poly.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max).ceil().min(w as f64 - 1.0) as i64;
+    let maxx = poly
+        .iter()
+        .map(|p| p.0)
+        .fold(f64::NEG_INFINITY, f64::max)
+        .ceil()
+        .min(w as f64 - 1.0) as i64;
     for y in miny..=maxy {
         for x in minx..=maxx {
             if inside(poly, x as f64, y as f64) {
                 let px = img.get_pixel_mut(x as u32, y as u32);
                 for ch in 0..3 {
-                    px.0[ch] = (alpha * f32::from(colour[ch]) + (1.0 - alpha) * f32::from(px.0[ch])).round() as u8;
+                    px.0[ch] = (alpha * f32::from(colour[ch]) + (1.0 - alpha) * f32::from(px.0[ch]) + 0.5) as u8;
                 }
             }
         }
     }
+}
+
+/// Scales `src` to `w` x `h` by bilinear sampling (pixel centres aligned), a cheap
+/// resampling for moderate reductions such as a preview's.
+pub fn scale_bilinear(src: &RgbImage, w: u32, h: u32) -> RgbImage {
+    let (sw, sh) = (src.width(), src.height());
+    let mut out = RgbImage::new(w, h);
+    if sw == 0 || sh == 0 {
+        return out;
+    }
+    let (fx, fy) = (sw as f32 / w.max(1) as f32, sh as f32 / h.max(1) as f32);
+    let raw = src.as_raw();
+    let at = |x: u32, y: u32, c: usize| f32::from(raw[(y as usize * sw as usize + x as usize) * 3 + c]);
+    for (x, y, px) in out.enumerate_pixels_mut() {
+        let sx = ((x as f32 + 0.5) * fx - 0.5).clamp(0.0, (sw - 1) as f32);
+        let sy = ((y as f32 + 0.5) * fy - 0.5).clamp(0.0, (sh - 1) as f32);
+        let (x0, y0) = (sx as u32, sy as u32);
+        let (x1, y1) = ((x0 + 1).min(sw - 1), (y0 + 1).min(sh - 1));
+        let (ax, ay) = (sx - x0 as f32, sy - y0 as f32);
+        for c in 0..3 {
+            let top = at(x0, y0, c) * (1.0 - ax) + at(x1, y0, c) * ax;
+            let bottom = at(x0, y1, c) * (1.0 - ax) + at(x1, y1, c) * ax;
+            px.0[c] = (top * (1.0 - ay) + bottom * ay + 0.5) as u8;
+        }
+    }
+    out
 }
 
 /// Draws filled discs of `radius` px with a one-pixel dark outline at `points` (0-based
@@ -562,7 +596,12 @@ mod tests {
             },
             targets: vec![MorphTarget {
                 name: "lift".into(),
-                deltas: vec![Vector3::zeros(), Vector3::zeros(), Vector3::new(0.0, 0.0, 1.0), Vector3::zeros()],
+                deltas: vec![
+                    Vector3::zeros(),
+                    Vector3::zeros(),
+                    Vector3::new(0.0, 0.0, 1.0),
+                    Vector3::zeros(),
+                ],
             }],
         }
     }
@@ -596,7 +635,10 @@ mod tests {
         ));
         let mut img = RgbImage::from_pixel(100, 80, Rgb([0, 0, 0]));
         let mut ws = RenderWorkspace::default();
-        let view = View::Camera { camera: &k, pose: &pose };
+        let view = View::Camera {
+            camera: &k,
+            pose: &pose,
+        };
         r.draw(&mut img, &[0.0], Some(&pose), view, 1.0, &mut ws).unwrap();
         // The quad spans +-1 unit at 10 units: +-10 px around the principal point.
         assert_ne!(img.get_pixel(50, 40).0, [0, 0, 0]);
@@ -623,12 +665,35 @@ mod tests {
     }
 
     #[test]
+    fn bilinear_scaling_keeps_flat_colours_and_size() {
+        let src = RgbImage::from_pixel(512, 300, Rgb([10, 200, 77]));
+        let out = scale_bilinear(&src, 360, 211);
+        assert_eq!((out.width(), out.height()), (360, 211));
+        assert!(out.pixels().all(|p| p.0 == [10, 200, 77]));
+        // A left-to-right ramp stays a ramp.
+        let ramp = RgbImage::from_fn(256, 4, |x, _| Rgb([x as u8, 0, 0]));
+        let half = scale_bilinear(&ramp, 128, 2);
+        assert!(half.get_pixel(0, 0).0[0] < half.get_pixel(127, 1).0[0]);
+    }
+
+    #[test]
     fn text_and_bars_draw_inside_the_image() {
         let mut img = RgbImage::from_pixel(300, 40, Rgb([255, 255, 255]));
-        draw_weight_bars(&mut img, (0, 0, 300, 40), &["jawOpen".into(), "x".into()], &[0.5, 2.0], &[0, 1]);
+        draw_weight_bars(
+            &mut img,
+            (0, 0, 300, 40),
+            &["jawOpen".into(), "x".into()],
+            &[0.5, 2.0],
+            &[0, 1],
+        );
         let blue = img.pixels().filter(|p| p.0 == [52, 120, 200]).count();
         assert!(blue > 0);
         draw_text(&mut img, "é?", -4, -4, 3, [0, 0, 0]);
-        draw_landmarks(&mut img, &[Point2::new(0.0, 0.0), Point2::new(f64::NAN, 1.0)], 3.0, [0, 255, 0]);
+        draw_landmarks(
+            &mut img,
+            &[Point2::new(0.0, 0.0), Point2::new(f64::NAN, 1.0)],
+            3.0,
+            [0, 255, 0],
+        );
     }
 }

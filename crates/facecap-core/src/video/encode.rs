@@ -133,9 +133,23 @@ impl FfmpegEncoder {
         let target = AtomicFile::create(path)?;
         let mut cmd = Command::new(&ffmpeg);
         cmd.args(["-hide_banner", "-nostats", "-loglevel", "error", "-y"])
-            .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", &format!("{width}x{height}")])
+            .args([
+                "-f",
+                "rawvideo",
+                "-pix_fmt",
+                "rgb24",
+                "-s",
+                &format!("{width}x{height}"),
+            ])
             .args(["-framerate", &format!("{}", params.fps), "-i", "pipe:0", "-an"])
-            .args(["-c:v", "libx264", "-preset", &params.preset, "-crf", &params.crf.to_string()])
+            .args([
+                "-c:v",
+                "libx264",
+                "-preset",
+                &params.preset,
+                "-crf",
+                &params.crf.to_string(),
+            ])
             .args(["-pix_fmt", "yuv420p", "-movflags", "+faststart", "-f", "mp4"])
             .arg(target.temp_path())
             .stdin(Stdio::piped())
@@ -201,7 +215,10 @@ impl FfmpegEncoder {
         if let Some(r) = self.reader.take() {
             let _ = r.join();
         }
-        let t = self.tail.lock().map(|t| t.iter().cloned().collect::<Vec<_>>().join(" | "));
+        let t = self
+            .tail
+            .lock()
+            .map(|t| t.iter().cloned().collect::<Vec<_>>().join(" | "));
         match t {
             Ok(s) if !s.is_empty() => format!("ffmpeg said: {s}"),
             _ => "ffmpeg printed nothing".into(),
@@ -256,10 +273,7 @@ impl FfmpegEncoder {
             let tail = self.tail_text();
             return Err(Error::Tool {
                 tool: "ffmpeg".into(),
-                reason: format!(
-                    "encoding {} failed ({status}); {tail}",
-                    self.path.display()
-                ),
+                reason: format!("encoding {} failed ({status}); {tail}", self.path.display()),
             });
         }
         if self.frames == 0 {
