@@ -581,6 +581,7 @@ pub struct Section {
 /// Writes `report.html` of a capture: the preview video at the top (when given), the
 /// summary table, the frame tiles (relative file names with captions) and the plot
 /// sections.
+#[allow(clippy::too_many_arguments)]
 pub fn write_capture_html(
     dir: &Path,
     title: &str,

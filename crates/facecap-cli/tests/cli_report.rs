@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The capture report in a real browser: `facecap synth` makes a short clip,
 //! `facecap capture` writes `report.html` with `preview.mp4`, and headless Chromium
 //! (Debian's `chromium`, installed by scripts/setup.sh) loads it: no console messages,

@@ -428,8 +428,8 @@ fn fill_polygon(img: &mut RgbImage, poly: &[(f64, f64)], colour: [u8; 3], alpha:
         for x in minx..=maxx {
             if inside(poly, x as f64, y as f64) {
                 let px = img.get_pixel_mut(x as u32, y as u32);
-                for ch in 0..3 {
-                    px.0[ch] = (alpha * f32::from(colour[ch]) + (1.0 - alpha) * f32::from(px.0[ch]) + 0.5) as u8;
+                for (p, &c) in px.0.iter_mut().zip(&colour) {
+                    *p = (alpha * f32::from(c) + (1.0 - alpha) * f32::from(*p) + 0.5) as u8;
                 }
             }
         }
