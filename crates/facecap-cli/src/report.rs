@@ -598,7 +598,7 @@ pub fn write_capture_html(
         "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title>\
          <link rel=\"icon\" href=\"data:,\"><style>\
          body{{font-family:sans-serif;margin:20px;max-width:1400px;color:#222}}\
-         table{{border-collapse:collapse;margin:8px 0}}td{{border:1px solid #ccc;padding:3px 8px;font-size:14px}}\
+         table{{border-collapse:collapse;margin:8px 0;max-width:100%}}td{{border:1px solid #ccc;padding:3px 8px;font-size:14px;overflow-wrap:anywhere}}\
          video{{width:100%;max-width:1400px;background:#000}}\
          .tiles{{display:grid;grid-template-columns:repeat(auto-fill,minmax(600px,1fr));gap:10px}}\
          figure{{margin:0}}figcaption{{font-size:13px;color:#444}}img{{max-width:100%}}\
