@@ -8,7 +8,7 @@
 # again: every step checks what is already there (by sha256 for downloaded files) and
 # skips it. Downloads come only from package registries, by package name:
 #
-#   Debian   ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm xvfb
+#   Debian   ffmpeg chromium libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm xvfb
 #            ca-certificates curl slurm-wlm munge (Slurm for the batch test, scripts/test_slurm.sh)
 #   PyPI     dlib-bin==20.0.1.post1 + numpy (venv, only to export dlib's HOG face detector),
 #            python-osc==1.9.3 (venv, the OSC receiver of the live tests)
@@ -104,12 +104,12 @@ do not use it (report it)."
 
 # ---------------------------------------------------------------- apt packages
 # slurm-wlm and munge: the one-node Slurm cluster of scripts/test_slurm.sh (`facecap batch --slurm`);
-# xvfb: the live preview window's test.
-APT_PACKAGES=(ffmpeg libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl
+# xvfb: the live preview window's test; chromium: the report's browser test.
+APT_PACKAGES=(ffmpeg chromium libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl
   xvfb slurm-wlm munge)
 # A package counts as present if dpkg has it or, for tools, the command exists (e.g.
 # NodeSource's nodejs ships npm, and Debian's npm package would conflict with it).
-declare -A APT_COMMAND=([ffmpeg]=ffmpeg [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl [xvfb]=Xvfb)
+declare -A APT_COMMAND=([ffmpeg]=ffmpeg [chromium]=chromium [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl [xvfb]=Xvfb)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   if dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then continue; fi

@@ -110,6 +110,16 @@ pub struct Args {
     /// Number of frames on the report's contact sheet.
     #[arg(long, default_value_t = 12)]
     pub sheet_frames: usize,
+    /// Do not write the preview video (`preview.mp4`: each frame with the landmarks and
+    /// the fitted rig over the face, beside the rig with the solved weights and a bar
+    /// chart of them; written by default and shown at the top of `report.html`).
+    #[arg(long)]
+    pub no_preview: bool,
+    /// Folder of MediaPipe blendshape references for the report, in the layout of
+    /// `scripts/eval_expressions.py` (`mp_blendshapes_<video-stem>.csv`); each shape's
+    /// reference is plotted beside its weight. Default: the video's own folder.
+    #[arg(long, value_name = "DIR")]
+    pub reference: Option<PathBuf>,
     /// Print a JSON summary of all videos on stdout.
     #[arg(long)]
     pub json: bool,
@@ -123,6 +133,7 @@ pub struct Args {
 /// Everything shared by all videos.
 pub(crate) struct Setup {
     rig_mesh: MorphMesh,
+    renderer: facecap_pipeline::RigRenderer,
     expression: ExpressionSetup,
     rig_name: String,
     camera: Option<Intrinsics>,
@@ -206,6 +217,7 @@ pub(crate) struct ExpressionParts {
     pub(crate) rig_mesh: MorphMesh,
     pub(crate) map: LandmarkMap,
     pub(crate) rig_name: String,
+    pub(crate) renderer: facecap_pipeline::RigRenderer,
     pub(crate) expression: ExpressionSetup,
     pub(crate) neutral: NeutralHook,
 }
@@ -236,6 +248,7 @@ pub(crate) fn expression_parts(
         }
     };
     let rig = BlendshapeRig::from_morph_mesh(rig_mesh.clone(), &map, &rig_name)?;
+    let renderer = facecap_pipeline::RigRenderer::new(&rig_mesh, Some(&map))?;
     let objective = ObjectiveParams {
         temporal,
         ..ObjectiveParams::default()
@@ -246,6 +259,7 @@ pub(crate) fn expression_parts(
         rig_mesh,
         map,
         rig_name,
+        renderer,
         expression: ExpressionSetup {
             rig,
             method,
@@ -271,6 +285,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         rig_mesh,
         map,
         rig_name,
+        renderer,
         expression,
         neutral,
     } = expression_parts(
@@ -344,6 +359,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     });
     Ok(Setup {
         rig_mesh,
+        renderer,
         expression,
         rig_name,
         camera,
@@ -587,11 +603,55 @@ fn capture_one(
             rig_unit_mm: facecap_pipeline::openface::RIG_UNIT_MM,
         },
     )?;
+    let write_seconds = t.elapsed().as_secs_f64();
     let frames = &result.frames;
     let names = &result.names;
+    let preview_path = out_dir.join(PREVIEW_FILE);
+    let keep: Vec<u64> = result.sheet.iter().map(|(k, _)| frames[*k].index).collect();
+    let t = Instant::now();
+    let (preview, stills) = if args.no_preview {
+        // a preview of an earlier run would no longer match
+        let _ = std::fs::remove_file(&preview_path);
+        (None, Vec::new())
+    } else {
+        let (rep, stills) = facecap_pipeline::write_preview(
+            video,
+            frames,
+            names,
+            &setup.renderer,
+            &camera,
+            &preview_path,
+            &facecap_pipeline::PreviewParams {
+                decode_threads: args.decode_threads,
+                ..facecap_pipeline::PreviewParams::default()
+            },
+            &keep,
+            Some(interrupted),
+        )?;
+        (Some(rep), stills)
+    };
+    let preview_seconds = t.elapsed().as_secs_f64();
+    let t = Instant::now();
     let truth = crate::truth::evaluate(video, names, &frames_for_truth(frames))?;
-    write_report(out_dir, video, setup, names, &result, truth.as_ref())?;
-    let write_seconds = t.elapsed().as_secs_f64();
+    let reference_dir = args
+        .reference
+        .clone()
+        .unwrap_or_else(|| video.parent().map(Path::to_path_buf).unwrap_or_default());
+    let reference = reference_dir.join(format!("mp_blendshapes_{}.csv", video_stem(video)));
+    write_report(
+        out_dir,
+        video,
+        setup,
+        &result,
+        &ReportInputs {
+            truth: truth.as_ref(),
+            camera: &camera,
+            preview: preview.is_some(),
+            stills: &stills,
+            reference: &reference,
+        },
+    )?;
+    let report_seconds = t.elapsed().as_secs_f64();
     let elapsed = started.elapsed().as_secs_f64();
     let reproj: Vec<f64> = frames
         .iter()
@@ -614,7 +674,12 @@ fn capture_one(
             "decode": run.decode_seconds, "track": run.track_seconds, "solve": run.sink_seconds("solve"),
             "muscles": run.sink_seconds("muscles"), "tensor": run.sink_seconds("tensor"),
             "landmarks_csv": run.sink_seconds("landmarks"), "write_outputs": write_seconds,
+            "preview": preview_seconds, "report": report_seconds,
         },
+        "preview": preview.as_ref().map(|p| json!({
+            "file": PREVIEW_FILE, "frames": p.frames, "width": p.width, "height": p.height, "fps": p.fps,
+            "decode_seconds": p.decode_seconds, "render_seconds": p.render_seconds, "encode_seconds": p.encode_seconds,
+        })),
         "mean_reprojection_px": if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 },
         "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "shapes": names,
@@ -630,7 +695,7 @@ fn capture_one(
     let text = serde_json::to_string_pretty(&summary)?;
     facecap_core::atomic::write_atomic(out_dir.join("summary.json"), |w| w.write_all(text.as_bytes()))?;
     crate::out::verbose(&format!(
-        "{}: busy seconds: decode {:.2}, track {:.2}, sinks {}; outputs {:.2}",
+        "{}: busy seconds: decode {:.2}, track {:.2}, sinks {}; outputs {:.2}; preview {:.2}; report {:.2}",
         video.display(),
         run.decode_seconds,
         run.track_seconds,
@@ -639,7 +704,9 @@ fn capture_one(
             .map(|(n, s)| format!("{n} {s:.2}"))
             .collect::<Vec<_>>()
             .join(", "),
-        write_seconds
+        write_seconds,
+        preview_seconds,
+        report_seconds
     ));
     Ok(summary)
 }
@@ -655,15 +722,29 @@ fn frames_for_truth(frames: &[SolvedFrame]) -> Vec<crate::truth::Estimate> {
         .collect()
 }
 
+/// File name of the preview video in a capture folder.
+pub const PREVIEW_FILE: &str = "preview.mp4";
+
+/// What the report needs beside the solve.
+struct ReportInputs<'a> {
+    truth: Option<&'a serde_json::Value>,
+    camera: &'a Intrinsics,
+    preview: bool,
+    /// Colour frames of the tiles (from the preview pass; grey frames otherwise).
+    stills: &'a [(u64, RgbImage)],
+    /// Where the MediaPipe reference would be.
+    reference: &'a Path,
+}
+
 fn write_report(
     out_dir: &Path,
     video: &Path,
     setup: &Setup,
-    names: &[String],
     result: &ExpressionResult,
-    truth: Option<&serde_json::Value>,
+    inputs: &ReportInputs<'_>,
 ) -> anyhow::Result<()> {
     let frames = &result.frames;
+    let names = &result.names;
     let sheet: Vec<(u64, &GrayImage, &SolvedFrame)> = result
         .sheet
         .iter()
@@ -675,104 +756,224 @@ fn write_report(
     let tiles: Vec<anyhow::Result<(String, String)>> = sheet
         .par_iter()
         .map(|(idx, gray, f)| {
-            let mut rgb = RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
-                let v = gray.get_pixel(x, y).0[0];
-                image::Rgb([v, v, v])
-            });
-            if let Some(l) = &f.landmarks {
-                let r = (gray.width().max(gray.height()) / 250).max(1) as i64;
-                report::draw_points(&mut rgb, &l.points, r, [40, 220, 60]);
-            }
-            let size = rgb.height().clamp(64, 720);
-            let mut posed = Vec::new();
-            setup.rig_mesh.pose_into(&f.weights, &mut posed)?;
-            // Show the head rotation as seen by the camera.
-            let rot = match &f.pose {
-                Some(p) => report::camera_view(&p.0.rotation.to_rotation_matrix()),
-                None => nalgebra::Rotation3::identity(),
+            let mut rgb = match inputs.stills.iter().find(|(i, _)| i == idx) {
+                Some((_, c)) => c.clone(),
+                None => RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
+                    let v = gray.get_pixel(x, y).0[0];
+                    image::Rgb([v, v, v])
+                }),
             };
-            let render = report::render_mesh(&posed, &setup.rig_mesh.base.triangles, &rot, size);
+            let mut ws = facecap_pipeline::RenderWorkspace::default();
+            let radius = (f64::from(rgb.height()) / 110.0).max(2.5);
+            facecap_pipeline::preview::draw_overlay(&mut rgb, &setup.renderer, f, inputs.camera, 1.0, radius, &mut ws)?;
+            let size = rgb.height().clamp(64, 720);
+            let render = setup.renderer.render(&f.weights, f.pose.as_ref(), size)?;
             let tile = report::side_by_side(&rgb, &render);
             let name = format!("frame_{idx:06}.png");
             let bytes = report::png_bytes_fast(&tile)?;
             facecap_core::atomic::write_atomic(dir.join(&name), |w| w.write_all(&bytes))?;
+            let state = if f.success { "" } else { ", no face (tracking lost)" };
             Ok((
                 format!("report/{name}"),
-                format!("frame {idx}, t = {:.2} s, confidence {:.2}", f.timestamp, f.confidence),
+                format!(
+                    "frame {idx}, t = {:.2} s, confidence {:.2}{state}",
+                    f.timestamp, f.confidence
+                ),
             ))
         })
         .collect();
-    let sheets = tiles.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
+    let tiles = tiles.into_iter().collect::<anyhow::Result<Vec<_>>>()?;
     let times: Vec<f64> = frames.iter().map(|f| f.timestamp).collect();
-    let mut plots = Vec::new();
-    let mut svg = |file: &str, title: &str, series: Vec<(String, Vec<f64>)>| -> anyhow::Result<()> {
-        let s = report::svg_line_plot(title, &times, &series, 1000, 320);
-        facecap_core::atomic::write_atomic(dir.join(file), |w| w.write_all(s.as_bytes()))?;
-        plots.push(format!("report/{file}"));
-        Ok(())
+    let ok: Vec<bool> = frames.iter().map(|f| f.success).collect();
+    let lost = report::lost_spans(&times, &ok);
+    let n_lost = ok.iter().filter(|g| !**g).count();
+    let lost_note = if n_lost == 0 {
+        "A face was tracked on every frame.".to_string()
+    } else {
+        format!("Grey bands: the {n_lost} frames without a tracked face (no weights, no pose).")
     };
-    let weight_series: Vec<(String, Vec<f64>)> = names
-        .iter()
-        .enumerate()
-        .map(|(k, n)| {
-            (
-                n.clone(),
-                frames
-                    .iter()
-                    .map(|f| if f.success { f.weights[k] } else { f64::NAN })
-                    .collect(),
-            )
+    let write_svg = |file: &str, svg: String| -> anyhow::Result<Option<String>> {
+        facecap_core::atomic::write_atomic(dir.join(file), |w| w.write_all(svg.as_bytes()))?;
+        Ok(Some(format!("report/{file}")))
+    };
+    let mut sections = Vec::new();
+    // Weights: one small plot per active shape, with the reference beside it.
+    let reference = if inputs.reference.is_file() {
+        Some(report::read_reference(
+            inputs.reference,
+            names,
+            &frames.iter().map(|f| f.index).collect::<Vec<_>>(),
+        )?)
+    } else {
+        None
+    };
+    let series: Vec<Vec<f64>> = (0..names.len())
+        .map(|k| {
+            frames
+                .iter()
+                .map(|f| if f.success { f.weights[k] } else { f64::NAN })
+                .collect()
         })
         .collect();
-    // Plot the most active shapes (at most 10 per plot to stay readable).
-    let mut order: Vec<usize> = (0..names.len()).collect();
-    order.sort_by(|&a, &b| {
-        let m = |k: usize| {
-            weight_series[k]
-                .1
-                .iter()
-                .filter(|x| x.is_finite())
-                .fold(0.0f64, |m, &x| m.max(x))
-        };
-        m(b).total_cmp(&m(a))
-    });
-    for (chunk_i, chunk) in order.chunks(10).take(3).enumerate() {
-        svg(
-            &format!("weights_{chunk_i}.svg"),
-            &format!("Blendshape weights ({})", chunk_i + 1),
-            chunk.iter().map(|&k| weight_series[k].clone()).collect(),
-        )?;
+    let peak = |v: &[f64]| {
+        v.iter()
+            .filter(|x| x.is_finite())
+            .fold(f64::NEG_INFINITY, |m, &x| m.max(x))
+    };
+    let (active, idle): (Vec<usize>, Vec<usize>) =
+        (0..names.len()).partition(|&k| peak(&series[k]) > report::ACTIVE_WEIGHT);
+    let curves: Vec<report::ShapeCurve> = active
+        .iter()
+        .map(|&k| report::ShapeCurve {
+            name: names[k].clone(),
+            values: series[k].clone(),
+            reference: reference.as_ref().and_then(|r| r[k].clone()),
+        })
+        .collect();
+    let y_max = active.iter().map(|&k| peak(&series[k])).fold(1.0f64, f64::max);
+    let mut note = format!(
+        "One plot per shape whose weight exceeds {} on some frame, all on the same weight range \
+         (0 to {}) and the same time axis; blue: facecap.",
+        report::ACTIVE_WEIGHT,
+        report::tick(y_max)
+    );
+    match &reference {
+        Some(r) => {
+            let with = curves.iter().filter(|c| c.reference.is_some()).count();
+            note.push_str(&format!(
+                " Orange: MediaPipe FaceLandmarker's score for the same ARKit shape ({}; {with} of {} shapes have one), \
+                 an independent model, not ground truth.",
+                inputs.reference.display(),
+                curves.len()
+            ));
+            let _ = r;
+        }
+        None => note.push_str(&format!(
+            " No MediaPipe reference beside it: none at {} (made by scripts/eval_expressions.py; --reference DIR names its folder).",
+            inputs.reference.display()
+        )),
     }
-    let pose_rows: Vec<[f64; 6]> = frames.iter().map(|f| pose_row(f.pose.as_ref())).collect();
-    svg(
-        "pose_rotation.svg",
-        "Head rotation (degrees)",
-        ["pitch (Rx)", "yaw (Ry)", "roll (Rz)"]
-            .iter()
-            .enumerate()
-            .map(|(k, n)| (n.to_string(), pose_rows.iter().map(|r| r[3 + k].to_degrees()).collect()))
-            .collect(),
-    )?;
-    svg(
-        "pose_translation.svg",
-        "Head translation (model units)",
-        ["Tx", "Ty", "Tz"]
-            .iter()
-            .enumerate()
-            .map(|(k, n)| (n.to_string(), pose_rows.iter().map(|r| r[k]).collect()))
-            .collect(),
-    )?;
-    svg(
-        "confidence.svg",
-        "Tracking confidence and reprojection error",
-        vec![
-            ("confidence".into(), frames.iter().map(|f| f.confidence).collect()),
-            (
-                "reprojection px / 10".into(),
-                frames.iter().map(|f| f.reprojection_px / 10.0).collect(),
-            ),
-        ],
-    )?;
+    note.push(' ');
+    note.push_str(&lost_note);
+    if !idle.is_empty() {
+        note.push_str(&format!(
+            " Shapes that stay at or below {} all clip (not plotted): {}.",
+            report::ACTIVE_WEIGHT,
+            idle.iter().map(|&k| names[k].as_str()).collect::<Vec<_>>().join(", ")
+        ));
+    }
+    let plot = if curves.is_empty() {
+        note.push_str(if frames.iter().any(|f| f.success) {
+            " No plot: no shape moved above the threshold on any solved frame."
+        } else {
+            " No plot: no frame had a tracked face, so no weights were solved."
+        });
+        None
+    } else {
+        write_svg(
+            "weights.svg",
+            report::small_multiples_svg(&times, &curves, &lost, (0.0, y_max), 4)?,
+        )?
+    };
+    sections.push(report::Section {
+        title: "Blendshape weights".into(),
+        plot,
+        note,
+    });
+    let pose_rows: Vec<[f64; 6]> = frames
+        .iter()
+        .map(|f| {
+            if f.success {
+                pose_row(f.pose.as_ref())
+            } else {
+                [f64::NAN; 6]
+            }
+        })
+        .collect();
+    let has_pose = pose_rows.iter().any(|r| r[3].is_finite());
+    let no_pose = if frames.iter().any(|f| f.success) {
+        "No head pose on any frame: the solver gave none (see pose.csv)"
+    } else {
+        "No head pose: no frame had a tracked face"
+    };
+    let pose_note = format!(
+        "Rotation of the head relative to facing the camera (pose.csv: pose_Rx pitch, pose_Ry yaw, pose_Rz roll), degrees. {}",
+        if has_pose { lost_note.as_str() } else { no_pose }
+    );
+    sections.push(report::Section {
+        title: "Head rotation".into(),
+        plot: write_svg(
+            "pose_rotation.svg",
+            report::lines_svg(
+                &times,
+                &["pitch (Rx)", "yaw (Ry)", "roll (Rz)"]
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| (n.to_string(), pose_rows.iter().map(|r| r[3 + k].to_degrees()).collect()))
+                    .collect::<Vec<_>>(),
+                &lost,
+                "degrees",
+                no_pose,
+            )?,
+        )?,
+        note: pose_note,
+    });
+    sections.push(report::Section {
+        title: "Head translation".into(),
+        plot: write_svg(
+            "pose_translation.svg",
+            report::lines_svg(
+                &times,
+                &["Tx (right)", "Ty (down)", "Tz (forward)"]
+                    .iter()
+                    .enumerate()
+                    .map(|(k, n)| (n.to_string(), pose_rows.iter().map(|r| r[k]).collect()))
+                    .collect::<Vec<_>>(),
+                &lost,
+                "rig units (cm)",
+                no_pose,
+            )?,
+        )?,
+        note: format!(
+            "Position of the rig's origin in camera axes (pose.csv pose_Tx..pose_Tz). {}",
+            if has_pose { lost_note.as_str() } else { no_pose }
+        ),
+    });
+    let conf: Vec<f64> = frames.iter().map(|f| f.confidence).collect();
+    sections.push(report::Section {
+        title: "Tracking confidence".into(),
+        plot: write_svg(
+            "confidence.svg",
+            report::lines_svg(
+                &times,
+                &[("confidence".to_string(), conf)],
+                &lost,
+                "confidence",
+                "No confidence values (no frames)",
+            )?,
+        )?,
+        note: format!("The landmark tracker's confidence per frame (0 to 1). {lost_note}"),
+    });
+    let reproj: Vec<f64> = frames
+        .iter()
+        .map(|f| if f.success { f.reprojection_px } else { f64::NAN })
+        .collect();
+    sections.push(report::Section {
+        title: "Landmark reprojection error".into(),
+        plot: write_svg(
+            "reprojection.svg",
+            report::lines_svg(
+                &times,
+                &[("mean error (px)".to_string(), reproj)],
+                &lost,
+                "pixels",
+                "No reprojection error: no frame was solved",
+            )?,
+        )?,
+        note: format!(
+            "Mean distance between the tracked landmarks and the rig's landmarks posed with the solved weights and head pose, pixels. {lost_note}"
+        ),
+    });
     let mut rows = vec![
         ("video".to_string(), video.display().to_string()),
         ("frames".to_string(), frames.len().to_string()),
@@ -783,16 +984,19 @@ fn write_report(
         ("rig".to_string(), setup.rig_name.clone()),
         ("solver".to_string(), setup.expression.method.name().to_string()),
     ];
-    if let Some(t) = truth {
+    if let Some(t) = inputs.truth {
         rows.push(("error against ground truth".to_string(), t.to_string()));
     }
-    report::write_report_html(
+    report::write_capture_html(
         out_dir,
         &format!("facecap capture: {}", video_stem(video)),
+        inputs.preview.then_some(PREVIEW_FILE),
+        "No preview video: this capture was made with --no-preview.",
         &rows,
-        "Each tile: the video frame with the tracked landmarks (green), and the rig posed with the solved weights and head rotation.",
-        &sheets,
-        &plots,
+        "Each tile: the video frame with the tracked landmarks (green) and the rig drawn over the face in the \
+         solved head pose, beside the rig with the solved weights and head rotation.",
+        &tiles,
+        &sections,
     )?;
     Ok(())
 }

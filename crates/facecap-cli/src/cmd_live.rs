@@ -282,8 +282,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let started = std::time::Instant::now();
     let run = std::thread::scope(|scope| -> anyhow::Result<_> {
         let win = window.then(|| {
-            let (mesh, c) = (&parts.rig_mesh, controls.clone());
-            scope.spawn(move || crate::live_window::run_window(preview_rx, mesh, &c))
+            let (renderer, c) = (&parts.renderer, controls.clone());
+            scope.spawn(move || crate::live_window::run_window(preview_rx, renderer, &c))
         });
         let result = {
             let mut sinks: Vec<&mut dyn Sink> = vec![&mut live_sink];

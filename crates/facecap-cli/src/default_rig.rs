@@ -4,15 +4,19 @@
 //! * **Neutral landmarks**: a 68-point 3D mean face (iBUG order, centimetres, +Y up,
 //!   +Z out of the face). The numbers are the 68 landmark vertices of the ICT-FaceKit
 //!   generic neutral mesh (USC ICT, MIT licence), rounded to 0.1 mm.
-//! * **Dense mesh**: the 68 points are Delaunay-triangulated in the frontal (x, y)
-//!   plane, each triangle is split 4-to-1 twice (16 triangles each), and every new
-//!   vertex gets its depth from a thin-plate spline through the 68 landmarks, so the
-//!   surface is smooth and passes exactly through the landmarks. Vertices 0..67 are the
-//!   landmarks themselves, so the landmark map is the identity.
+//! * **Dense mesh**: the 68 points and seven forehead/temple points are
+//!   Delaunay-triangulated in the frontal (x, y) plane, the triangles inside the inner
+//!   lip contour are left out (the mouth opening), each triangle is split 4-to-1 twice
+//!   (16 triangles each), and every new vertex gets its depth from a thin-plate spline
+//!   through those points, so the surface is smooth and passes exactly through the
+//!   landmarks. Vertices 0..67 are the landmarks themselves, so the landmark map is the
+//!   identity.
 //! * **Blendshapes**: 16 ARKit-named expression shapes (`jawOpen`, `mouthSmileLeft`, ...)
 //!   defined as 3D displacements of the 68 landmarks (FACS-style: which points move,
-//!   which way, by how many cm) and spread over the dense mesh by the same thin-plate
-//!   spline, so each shape is a smooth displacement field. "Left" is the subject's left
+//!   which way, by how many cm), spread piecewise-linearly over the landmark triangles
+//!   (a subdivision vertex moves as the mean of its edge's ends; a spline overshoots
+//!   between the nearly touching lips and folds the mesh when the mouth opens); the
+//!   forehead points stay. "Left" is the subject's left
 //!   (image right, +X).
 
 use facecap_core::landmark_map::LandmarkMap;
@@ -90,6 +94,34 @@ pub const MEAN_FACE_68_CM: [[f64; 3]; 68] = [
     [0.0000, -3.3998, 11.2526],
     [-1.0692, -3.3797, 11.0401],
 ];
+
+/// Forehead and temple points (cm) above the brows, so the rig reads as a face and not
+/// as a mask cut off at the brows; not landmarks (vertices 68..), still in every shape.
+const FOREHEAD_CM: [[f64; 3]; 7] = [
+    [-6.9, 7.6, 5.4],
+    [-5.0, 9.9, 7.6],
+    [-2.5, 10.6, 9.9],
+    [0.0, 10.8, 10.6],
+    [2.5, 10.6, 9.9],
+    [5.0, 9.9, 7.6],
+    [6.9, 7.6, 5.4],
+];
+
+/// iBUG indices of the inner lip contour, in order around the mouth.
+const INNER_LIP: [usize; 8] = [60, 61, 62, 63, 64, 65, 66, 67];
+
+/// Whether `p` is inside the polygon (even-odd rule).
+fn point_in_polygon(poly: &[(f64, f64)], p: (f64, f64)) -> bool {
+    let mut c = false;
+    let n = poly.len();
+    for i in 0..n {
+        let (a, b) = (poly[i], poly[(i + n - 1) % n]);
+        if (a.1 > p.1) != (b.1 > p.1) && p.0 < (b.0 - a.0) * (p.1 - a.1) / (b.1 - a.1) + a.0 {
+            c = !c;
+        }
+    }
+    c
+}
 
 /// Number of 4-to-1 subdivision passes of the landmark triangulation.
 const SUBDIVISIONS: usize = 2;
@@ -346,10 +378,27 @@ pub(crate) fn delaunay(points: &[(f64, f64)]) -> Vec<[u32; 3]> {
 /// # Errors
 /// Only if the built-in data were degenerate (a bug), reported as an error.
 pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
-    let centres: Vec<(f64, f64)> = MEAN_FACE_68_CM.iter().map(|p| (p[0], p[1])).collect();
-    let mut tris = delaunay(&centres);
-    // Planar vertex positions (x, y) of the subdivided mesh.
+    let mut base_points: Vec<[f64; 3]> = MEAN_FACE_68_CM.to_vec();
+    base_points.extend_from_slice(&FOREHEAD_CM);
+    let centres: Vec<(f64, f64)> = base_points.iter().map(|p| (p[0], p[1])).collect();
+    let inner_lip: Vec<(f64, f64)> = INNER_LIP.iter().map(|&i| centres[i]).collect();
+    // The mouth opening: triangles of the inner lip contour that lie inside it are left
+    // out, so an open mouth is a hole (the renderer shows a dark cavity behind it)
+    // instead of skin stretched and folded between the lips.
+    let mut tris: Vec<[u32; 3]> = delaunay(&centres)
+        .into_iter()
+        .filter(|t| {
+            let all_lip = t.iter().all(|&v| INNER_LIP.contains(&(v as usize)));
+            let c = t.iter().fold((0.0, 0.0), |a, &v| {
+                (a.0 + centres[v as usize].0 / 3.0, a.1 + centres[v as usize].1 / 3.0)
+            });
+            !(all_lip && point_in_polygon(&inner_lip, c))
+        })
+        .collect();
+    // Planar vertex positions (x, y) of the subdivided mesh, and each new vertex's
+    // parents (the ends of the edge it splits).
     let mut xy = centres.clone();
+    let mut parents: Vec<(u32, u32)> = Vec::new();
     for _ in 0..SUBDIVISIONS {
         let mut mid = std::collections::HashMap::new();
         let mut next = Vec::with_capacity(tris.len() * 4);
@@ -358,6 +407,7 @@ pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
             *mid.entry(key).or_insert_with(|| {
                 let (pa, pb) = (xy[a as usize], xy[b as usize]);
                 xy.push(((pa.0 + pb.0) / 2.0, (pa.1 + pb.1) / 2.0));
+                parents.push(key);
                 (xy.len() - 1) as u32
             })
         };
@@ -369,6 +419,7 @@ pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
         }
         tris = next;
     }
+    let n0 = centres.len();
     let tps = Tps::new(centres).ok_or_else(|| anyhow::anyhow!("default rig: degenerate landmark layout"))?;
     let field = |values: &[f64]| -> anyhow::Result<Vec<f64>> {
         let coef = tps
@@ -377,10 +428,10 @@ pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
         Ok(xy
             .iter()
             .enumerate()
-            .map(|(i, &(x, y))| if i < 68 { values[i] } else { tps.eval(&coef, x, y) })
+            .map(|(i, &(x, y))| if i < n0 { values[i] } else { tps.eval(&coef, x, y) })
             .collect())
     };
-    let z: Vec<f64> = field(&MEAN_FACE_68_CM.iter().map(|p| p[2]).collect::<Vec<_>>())?;
+    let z: Vec<f64> = field(&base_points.iter().map(|p| p[2]).collect::<Vec<_>>())?;
     let positions: Vec<Point3<f32>> = xy
         .iter()
         .zip(&z)
@@ -411,13 +462,17 @@ pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
     base.compute_normals();
     let mut targets = Vec::with_capacity(DEFAULT_SHAPES.len());
     for name in DEFAULT_SHAPES {
+        // Landmarks move as defined, the forehead stays; every vertex the subdivision
+        // added moves as the mean of its edge's ends (piecewise linear over the landmark
+        // triangles: no overshoot, so no folds where the lips part).
         let d = landmark_displacements(name);
-        let dx = field(&d.iter().map(|v| v.x).collect::<Vec<_>>())?;
-        let dy = field(&d.iter().map(|v| v.y).collect::<Vec<_>>())?;
-        let dz = field(&d.iter().map(|v| v.z).collect::<Vec<_>>())?;
-        let deltas = (0..xy.len())
-            .map(|i| Vector3::new(dx[i] as f32, dy[i] as f32, dz[i] as f32))
+        let mut deltas: Vec<Vector3<f32>> = (0..n0)
+            .map(|i| if i < 68 { d[i].cast::<f32>() } else { Vector3::zeros() })
             .collect();
+        for &(a, b) in &parents {
+            let m = (deltas[a as usize] + deltas[b as usize]) / 2.0;
+            deltas.push(m);
+        }
         targets.push(MorphTarget {
             name: name.to_string(),
             deltas,

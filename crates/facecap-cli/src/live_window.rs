@@ -10,8 +10,8 @@ use std::sync::atomic::Ordering;
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::Duration;
 
-use facecap_core::mesh::MorphMesh;
 use facecap_pipeline::net::PreviewFrame;
+use facecap_pipeline::RigRenderer;
 use image::{Rgb, RgbImage};
 
 use crate::cmd_live::Controls;
@@ -30,9 +30,9 @@ pub fn display_available() -> bool {
 }
 
 /// The preview image of one frame: the camera frame (grey) with the landmarks, the rig
-/// rendered beside it, and the status line below. The one function to swap for another
-/// rig renderer.
-pub fn render_preview(frame: &PreviewFrame, mesh: &MorphMesh, posed: &mut Vec<nalgebra::Point3<f32>>) -> RgbImage {
+/// rendered beside it (the report's and the preview video's renderer), and the status
+/// line below.
+pub fn render_preview(frame: &PreviewFrame, renderer: &RigRenderer) -> RgbImage {
     let g = &frame.gray;
     let step = g.height().div_ceil(MAX_PREVIEW_HEIGHT).max(1);
     let (w, h) = (g.width() / step, g.height() / step);
@@ -44,17 +44,12 @@ pub fn render_preview(frame: &PreviewFrame, mesh: &MorphMesh, posed: &mut Vec<na
     });
     if let Some(l) = &frame.solved.landmarks {
         let pts: Vec<nalgebra::Point2<f64>> = l.points.iter().map(|p| p / f64::from(step)).collect();
-        crate::report::draw_points(&mut cam, &pts, 2, [40, 220, 60]);
+        facecap_pipeline::render::draw_landmarks(&mut cam, &pts, 2.0, [40, 220, 60]);
     }
-    let rot = match &frame.solved.pose {
-        Some(p) => crate::report::camera_view(&p.0.rotation.to_rotation_matrix()),
-        None => nalgebra::Rotation3::identity(),
-    };
-    let rig = if mesh.pose_into(&frame.solved.weights, posed).is_ok() {
-        crate::report::render_mesh(posed, &mesh.base.triangles, &rot, cam.height().max(64))
-    } else {
-        RgbImage::from_pixel(cam.height().max(64), cam.height().max(64), Rgb([245, 245, 245]))
-    };
+    let size = cam.height().max(64);
+    let rig = renderer
+        .render(&frame.solved.weights, frame.solved.pose.as_ref(), size)
+        .unwrap_or_else(|_| RgbImage::from_pixel(size, size, Rgb([245, 245, 245])));
     let top = crate::report::side_by_side(&cam, &rig);
     let mut out = RgbImage::from_pixel(top.width(), top.height() + STATUS_HEIGHT, Rgb([20, 20, 20]));
     image::imageops::overlay(&mut out, &top, 0, 0);
@@ -73,15 +68,14 @@ pub fn render_preview(frame: &PreviewFrame, mesh: &MorphMesh, posed: &mut Vec<na
 ///
 /// # Errors
 /// When the window cannot be opened or updated.
-pub fn run_window(rx: Receiver<PreviewFrame>, mesh: &MorphMesh, controls: &Controls) -> Result<(), String> {
+pub fn run_window(rx: Receiver<PreviewFrame>, renderer: &RigRenderer, controls: &Controls) -> Result<(), String> {
     use minifb::{Key, KeyRepeat, Window, WindowOptions};
     let mut window: Option<Window> = None;
     let mut buf: Vec<u32> = Vec::new();
-    let mut posed = Vec::new();
     loop {
         match rx.recv_timeout(IDLE_POLL) {
             Ok(f) => {
-                let img = render_preview(&f, mesh, &mut posed);
+                let img = render_preview(&f, renderer);
                 let (w, h) = (img.width() as usize, img.height() as usize);
                 buf.clear();
                 buf.extend(

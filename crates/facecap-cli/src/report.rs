@@ -5,31 +5,12 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use image::{Rgb, RgbImage};
-use nalgebra::{Point2, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 
 /// Colours used for plot series (cycled).
 const PALETTE: [&str; 10] = [
     "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
 ];
-
-/// Draws filled discs of `radius` px at `points` (0-based pixel coordinates).
-pub fn draw_points(img: &mut RgbImage, points: &[Point2<f64>], radius: i64, colour: [u8; 3]) {
-    let (w, h) = (img.width() as i64, img.height() as i64);
-    for p in points {
-        if !(p.x.is_finite() && p.y.is_finite()) {
-            continue;
-        }
-        let (cx, cy) = (p.x.round() as i64, p.y.round() as i64);
-        for dy in -radius..=radius {
-            for dx in -radius..=radius {
-                let (x, y) = (cx + dx, cy + dy);
-                if dx * dx + dy * dy <= radius * radius && x >= 0 && y >= 0 && x < w && y < h {
-                    img.put_pixel(x as u32, y as u32, Rgb(colour));
-                }
-            }
-        }
-    }
-}
 
 /// Renders a triangle mesh seen from the front (+Z towards the viewer, +Y up) into a
 /// `size` x `size` image with a z-buffer and Lambert shading. `positions` are in model
@@ -279,6 +260,406 @@ pub fn write_report_html(
     Ok(())
 }
 
+// ------------------------------------------------------------------------------------
+// The capture report: plots drawn with `plotters` (SVG backend), page assembled here.
+
+/// Grey of the shading that marks frames without a tracked face, in every plot.
+const LOST_SHADE: plotters::style::RGBColor = plotters::style::RGBColor(205, 205, 205);
+/// Line colour of facecap's curves.
+const OURS: plotters::style::RGBColor = plotters::style::RGBColor(31, 105, 180);
+/// Line colour of the reference curves.
+const REFERENCE: plotters::style::RGBColor = plotters::style::RGBColor(230, 120, 20);
+/// A shape counts as active when its weight exceeds this on some solved frame.
+pub const ACTIVE_WEIGHT: f64 = 0.05;
+
+fn plot_err(e: impl std::fmt::Display) -> anyhow::Error {
+    anyhow::anyhow!("drawing a plot: {e}")
+}
+
+/// A tick label without float noise: at most 2 decimals, trailing zeros dropped.
+pub fn tick(v: f64) -> String {
+    let s = format!("{v:.2}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" {
+        "0".into()
+    } else {
+        s.to_string()
+    }
+}
+
+/// Time spans `[start, end]` (seconds) of consecutive frames where `ok` is false,
+/// each frame covering half a frame interval either side.
+pub fn lost_spans(times: &[f64], ok: &[bool]) -> Vec<(f64, f64)> {
+    let dt = if times.len() > 1 {
+        (times[times.len() - 1] - times[0]) / (times.len() - 1) as f64
+    } else {
+        0.04
+    };
+    let mut spans: Vec<(f64, f64)> = Vec::new();
+    for (t, &good) in times.iter().zip(ok) {
+        if good {
+            continue;
+        }
+        let (a, b) = (t - dt / 2.0, t + dt / 2.0);
+        match spans.last_mut() {
+            Some(last) if a <= last.1 + 1e-9 => last.1 = b,
+            _ => spans.push((a, b)),
+        }
+    }
+    spans
+}
+
+/// Splits a series at non-finite values into drawable runs of (t, v).
+fn runs(times: &[f64], v: &[f64]) -> Vec<Vec<(f64, f64)>> {
+    let mut out: Vec<Vec<(f64, f64)>> = vec![Vec::new()];
+    for (&t, &x) in times.iter().zip(v) {
+        if x.is_finite() {
+            if let Some(last) = out.last_mut() {
+                last.push((t, x));
+            }
+        } else if out.last().is_some_and(|l| !l.is_empty()) {
+            out.push(Vec::new());
+        }
+    }
+    out.retain(|r| !r.is_empty());
+    out
+}
+
+/// One curve of a small-multiples plot, with its reference when there is one.
+#[derive(Debug, Clone)]
+pub struct ShapeCurve {
+    /// Shape name (plot title).
+    pub name: String,
+    /// facecap's values per frame (NaN where not solved).
+    pub values: Vec<f64>,
+    /// The reference's values per frame (NaN where it has none).
+    pub reference: Option<Vec<f64>>,
+}
+
+/// Small multiples: one small plot per curve on a grid of `cols` columns, all with
+/// the y range `y` and the same time axis, frames in `lost` shaded.
+pub fn small_multiples_svg(
+    times: &[f64],
+    curves: &[ShapeCurve],
+    lost: &[(f64, f64)],
+    y: (f64, f64),
+    cols: usize,
+) -> anyhow::Result<String> {
+    use plotters::prelude::*;
+    let cols = cols.max(1).min(curves.len().max(1));
+    let rows = curves.len().div_ceil(cols).max(1);
+    let (cell_w, cell_h) = (300u32, 150u32);
+    let t0 = times.first().copied().unwrap_or(0.0);
+    let t1 = times.last().copied().unwrap_or(1.0).max(t0 + 1e-6);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (cell_w * cols as u32, cell_h * rows as u32)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let cells = root.split_evenly((rows, cols));
+        for (cell, c) in cells.iter().zip(curves) {
+            let mut chart = ChartBuilder::on(cell)
+                .caption(&c.name, ("sans-serif", 14))
+                .margin(6)
+                .x_label_area_size(20)
+                .y_label_area_size(30)
+                .build_cartesian_2d(t0..t1, y.0..y.1)
+                .map_err(plot_err)?;
+            chart
+                .configure_mesh()
+                .x_labels(5)
+                .y_labels(3)
+                .x_label_formatter(&|v| format!("{} s", tick(*v)))
+                .y_label_formatter(&|v| tick(*v))
+                .label_style(("sans-serif", 11))
+                .light_line_style(WHITE)
+                .bold_line_style(RGBColor(232, 232, 232))
+                .draw()
+                .map_err(plot_err)?;
+            chart
+                .draw_series(
+                    lost.iter()
+                        .map(|&(a, b)| Rectangle::new([(a.max(t0), y.0), (b.min(t1), y.1)], LOST_SHADE.filled())),
+                )
+                .map_err(plot_err)?;
+            if let Some(r) = &c.reference {
+                for run in runs(times, r) {
+                    chart
+                        .draw_series(LineSeries::new(run, REFERENCE.stroke_width(1)))
+                        .map_err(plot_err)?;
+                }
+            }
+            let ours = runs(times, &c.values);
+            if ours.is_empty() {
+                cell.draw(&Text::new(
+                    "no solved frame",
+                    ((cell_w / 3) as i32, (cell_h / 2) as i32),
+                    ("sans-serif", 12),
+                ))
+                .map_err(plot_err)?;
+            }
+            for run in ours {
+                chart
+                    .draw_series(LineSeries::new(run, OURS.stroke_width(2)))
+                    .map_err(plot_err)?;
+            }
+        }
+        root.present().map_err(plot_err)?;
+    }
+    Ok(svg)
+}
+
+/// A plot of a few named series on one axis (head rotation, confidence, ...), frames in
+/// `lost` shaded. With no finite value at all, the plot says `empty_reason` instead.
+pub fn lines_svg(
+    times: &[f64],
+    series: &[(String, Vec<f64>)],
+    lost: &[(f64, f64)],
+    y_label: &str,
+    empty_reason: &str,
+) -> anyhow::Result<String> {
+    use plotters::prelude::*;
+    const COLOURS: [RGBColor; 4] = [
+        RGBColor(31, 105, 180),
+        RGBColor(230, 120, 20),
+        RGBColor(44, 160, 44),
+        RGBColor(200, 40, 40),
+    ];
+    let (w, h) = (900u32, 240u32);
+    let t0 = times.first().copied().unwrap_or(0.0);
+    let t1 = times.last().copied().unwrap_or(1.0).max(t0 + 1e-6);
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in series.iter().flat_map(|(_, v)| v.iter()).filter(|v| v.is_finite()) {
+        lo = lo.min(*v);
+        hi = hi.max(*v);
+    }
+    let empty = !lo.is_finite();
+    if empty {
+        (lo, hi) = (0.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.08).max(1e-3);
+    let (lo, hi) = (lo - pad, hi + pad);
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(52)
+            .build_cartesian_2d(t0..t1, lo..hi)
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .x_labels(10)
+            .y_labels(5)
+            .x_desc("time (s)")
+            .y_desc(y_label)
+            .x_label_formatter(&|v| tick(*v))
+            .y_label_formatter(&|v| tick(*v))
+            .label_style(("sans-serif", 12))
+            .light_line_style(WHITE)
+            .bold_line_style(RGBColor(232, 232, 232))
+            .draw()
+            .map_err(plot_err)?;
+        chart
+            .draw_series(
+                lost.iter()
+                    .map(|&(a, b)| Rectangle::new([(a.max(t0), lo), (b.min(t1), hi)], LOST_SHADE.filled())),
+            )
+            .map_err(plot_err)?;
+        if empty {
+            root.draw(&Text::new(
+                empty_reason.to_string(),
+                (80, (h / 2) as i32),
+                ("sans-serif", 15),
+            ))
+            .map_err(plot_err)?;
+        }
+        for (k, (name, v)) in series.iter().enumerate() {
+            let colour = COLOURS[k % COLOURS.len()];
+            let mut first = true;
+            for run in runs(times, v) {
+                let s = chart
+                    .draw_series(LineSeries::new(run, colour.stroke_width(2)))
+                    .map_err(plot_err)?;
+                if first {
+                    s.label(name.clone())
+                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+                    first = false;
+                }
+            }
+        }
+        if !empty {
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.85))
+                .border_style(RGBColor(200, 200, 200))
+                .label_font(("sans-serif", 12))
+                .position(SeriesLabelPosition::UpperRight)
+                .draw()
+                .map_err(plot_err)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    Ok(svg)
+}
+
+/// The ARKit name of a rig shape (ICT's `_L`/`_R` suffixes become `Left`/`Right`).
+pub fn arkit_name(name: &str) -> String {
+    for (suf, arkit) in [("_L", "Left"), ("_R", "Right")] {
+        if let Some(base) = name.strip_suffix(suf) {
+            return format!("{base}{arkit}");
+        }
+    }
+    name.to_string()
+}
+
+/// Reads a MediaPipe blendshape CSV in the layout of `scripts/eval_expressions.py`
+/// (`frame,success,_neutral,<52 ARKit names>`) and returns, per rig shape in `names`,
+/// its reference curve over `frames` (frame indices; NaN where the reference has no
+/// face), or `None` when the file has no column for that shape.
+///
+/// # Errors
+/// An unreadable file, or one without the `frame` and `success` columns.
+pub fn read_reference(path: &Path, names: &[String], frames: &[u64]) -> anyhow::Result<Vec<Option<Vec<f64>>>> {
+    let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').map(str::trim).collect();
+    let col = |n: &str| header.iter().position(|h| *h == n);
+    let (Some(fi), Some(si)) = (col("frame"), col("success")) else {
+        anyhow::bail!(
+            "{}: not a reference CSV (needs the columns frame, success and ARKit shape names)",
+            path.display()
+        );
+    };
+    let cols: Vec<Option<usize>> = names.iter().map(|n| col(&arkit_name(n))).collect();
+    let mut by_frame: std::collections::HashMap<u64, Vec<f64>> = std::collections::HashMap::new();
+    for line in lines {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        let (Some(frame), Some(ok)) = (f.get(fi).and_then(|v| v.parse::<f64>().ok()), f.get(si)) else {
+            continue;
+        };
+        if !matches!(*ok, "1" | "true" | "True") || frame < 0.0 {
+            continue;
+        }
+        let vals = cols
+            .iter()
+            .map(|c| {
+                c.and_then(|c| f.get(c))
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .unwrap_or(f64::NAN)
+            })
+            .collect();
+        by_frame.insert(frame as u64, vals);
+    }
+    Ok(cols
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            c.map(|_| {
+                frames
+                    .iter()
+                    .map(|fr| by_frame.get(fr).map_or(f64::NAN, |v| v[k]))
+                    .collect()
+            })
+        })
+        .collect())
+}
+
+/// One section of the capture report: a heading, a plot (file name relative to the
+/// report) and a note under it.
+#[derive(Debug, Clone)]
+pub struct Section {
+    /// Heading.
+    pub title: String,
+    /// The plot's file (relative), if any.
+    pub plot: Option<String>,
+    /// Text under the heading (HTML-escaped when written).
+    pub note: String,
+}
+
+/// Writes `report.html` of a capture: the preview video at the top (when given), the
+/// summary table, the frame tiles (relative file names with captions) and the plot
+/// sections.
+#[allow(clippy::too_many_arguments)]
+pub fn write_capture_html(
+    dir: &Path,
+    title: &str,
+    video: Option<&str>,
+    no_video_note: &str,
+    summary_rows: &[(String, String)],
+    tiles_intro: &str,
+    tiles: &[(String, String)],
+    sections: &[Section],
+) -> anyhow::Result<()> {
+    let mut html = String::new();
+    let _ = write!(
+        html,
+        "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{t}</title>\
+         <link rel=\"icon\" href=\"data:,\"><style>\
+         body{{font-family:sans-serif;margin:20px;max-width:1400px;color:#222}}\
+         table{{border-collapse:collapse;margin:8px 0;max-width:100%}}td{{border:1px solid #ccc;padding:3px 8px;font-size:14px;overflow-wrap:anywhere}}\
+         video{{width:100%;max-width:1400px;background:#000}}\
+         .tiles{{display:grid;grid-template-columns:repeat(auto-fill,minmax(600px,1fr));gap:10px}}\
+         figure{{margin:0}}figcaption{{font-size:13px;color:#444}}img{{max-width:100%}}\
+         .note{{color:#555;font-size:14px;max-width:900px}}.legend span{{display:inline-block;width:22px;height:4px;vertical-align:middle;margin:0 4px 0 12px}}\
+         </style></head><body><h1>{t}</h1>",
+        t = escape(title)
+    );
+    match video {
+        Some(v) => {
+            let _ = write!(
+                html,
+                "<video id=\"preview\" src=\"{}\" controls muted loop playsinline preload=\"auto\"></video>\
+                 <p class=\"note\">Left: the video with the tracked landmarks (green) and the rig drawn \
+                 over the face in the solved head pose; middle: the rig with the solved weights and head \
+                 rotation; right: the weights of the most active shapes.</p>",
+                escape(v)
+            );
+        }
+        None => {
+            let _ = write!(html, "<p class=\"note\">{}</p>", escape(no_video_note));
+        }
+    }
+    html.push_str("<table>");
+    for (k, v) in summary_rows {
+        let _ = write!(html, "<tr><td>{}</td><td>{}</td></tr>", escape(k), escape(v));
+    }
+    let _ = write!(
+        html,
+        "</table><h2>Frames</h2><p class=\"note\">{}</p><div class=\"tiles\">",
+        escape(tiles_intro)
+    );
+    for (file, caption) in tiles {
+        let _ = write!(
+            html,
+            "<figure><img src=\"{}\" alt=\"{c}\"><figcaption>{c}</figcaption></figure>",
+            escape(file),
+            c = escape(caption)
+        );
+    }
+    html.push_str("</div>");
+    for s in sections {
+        let _ = write!(
+            html,
+            "<h2>{}</h2><p class=\"note\">{}</p>",
+            escape(&s.title),
+            escape(&s.note)
+        );
+        if let Some(p) = &s.plot {
+            let _ = write!(
+                html,
+                "<div><img src=\"{}\" alt=\"{}\"></div>",
+                escape(p),
+                escape(&s.title)
+            );
+        }
+    }
+    html.push_str("</body></html>\n");
+    facecap_core::atomic::write_atomic(dir.join("report.html"), |w| w.write_all(html.as_bytes()))?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -319,5 +700,66 @@ mod tests {
             200,
         );
         assert!(svg.starts_with("<svg") && svg.ends_with("</svg>") && svg.contains("a&lt;b"));
+    }
+
+    #[test]
+    fn ticks_spans_and_plots() {
+        assert_eq!(tick(0.30000000000000004), "0.3");
+        assert_eq!(tick(2.0), "2");
+        assert_eq!(tick(-0.0001), "0");
+        let times: Vec<f64> = (0..10).map(|k| k as f64 * 0.1).collect();
+        let ok = [true, false, false, true, true, true, false, true, true, true];
+        let spans = lost_spans(&times, &ok);
+        assert_eq!(spans.len(), 2);
+        assert!((spans[0].0 - 0.05).abs() < 1e-9 && (spans[0].1 - 0.25).abs() < 1e-9);
+        let v: Vec<f64> = times
+            .iter()
+            .zip(&ok)
+            .map(|(t, &g)| if g { *t } else { f64::NAN })
+            .collect();
+        let curves = vec![
+            ShapeCurve {
+                name: "jawOpen".into(),
+                values: v.clone(),
+                reference: Some(vec![0.5; 10]),
+            },
+            ShapeCurve {
+                name: "mouthPucker".into(),
+                values: vec![f64::NAN; 10],
+                reference: None,
+            },
+        ];
+        let svg = small_multiples_svg(&times, &curves, &spans, (0.0, 1.0), 4).unwrap();
+        assert!(svg.contains("jawOpen") && svg.contains("no solved frame"));
+        // Lost frames are shaded: the shade colour appears (once per span per plot).
+        assert!(svg.matches("#CDCDCD").count() >= 4, "{}", &svg[..400.min(svg.len())]);
+        let empty = lines_svg(
+            &times,
+            &[("yaw".into(), vec![f64::NAN; 10])],
+            &[],
+            "deg",
+            "no head pose",
+        )
+        .unwrap();
+        assert!(empty.contains("no head pose"));
+    }
+
+    #[test]
+    fn reference_columns_by_arkit_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("mp.csv");
+        std::fs::write(
+            &p,
+            "frame,success,_neutral,eyeBlinkLeft,jawOpen\n0,1,0,0.25,0.5\n1,0,0,0,0\n2,1,0,0.75,0.1\n",
+        )
+        .unwrap();
+        let names = vec!["eyeBlink_L".to_string(), "jawOpen".into(), "cheekPuffy".into()];
+        let r = read_reference(&p, &names, &[0, 1, 2]).unwrap();
+        assert_eq!(r[0].as_ref().unwrap()[0], 0.25);
+        assert!(r[0].as_ref().unwrap()[1].is_nan());
+        assert_eq!(r[1].as_ref().unwrap()[2], 0.1);
+        assert!(r[2].is_none());
+        std::fs::write(&p, "a,b\n").unwrap();
+        assert!(read_reference(&p, &names, &[0]).is_err());
     }
 }

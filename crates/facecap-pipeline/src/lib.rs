@@ -50,6 +50,8 @@ pub mod muscle;
 pub mod net;
 pub mod openface;
 pub mod outputs;
+pub mod preview;
+pub mod render;
 pub mod resume;
 pub mod sink;
 pub mod sinks;
@@ -65,6 +67,8 @@ pub use expression::{
 pub use live::{open_live, LatestFrame, LiveInput};
 pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use net::{LiveOutputs, LiveSink};
+pub use preview::{write_preview, PreviewParams, PreviewReport};
+pub use render::{RenderWorkspace, RigRenderer, View};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};

@@ -52,6 +52,7 @@ use image::{GrayImage, RgbImage};
 
 use crate::error::{Error, Result};
 
+pub mod encode;
 pub mod ffmpeg;
 pub mod folder;
 pub mod y4m;
