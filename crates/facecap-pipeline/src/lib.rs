@@ -58,4 +58,4 @@ pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};
-pub use tracker::{open_video, replay, RunControl, RunReport, TrackerPolicy, VideoTracker};
+pub use tracker::{open_video, open_video_with, replay, RunControl, RunReport, TrackerPolicy, VideoTracker};
