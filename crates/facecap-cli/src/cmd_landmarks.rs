@@ -217,7 +217,8 @@ fn process_image(
     total_faces: &mut usize,
 ) -> anyhow::Result<()> {
     {
-        load_grey(input, args.grey, grey).with_context(|| format!("reading {}", input.display()))?;
+        // the loaders name the file in their errors
+        load_grey(input, args.grey, grey)?;
         if let Some(b) = &args.face_box {
             check_box_in_image(b, grey.width(), grey.height())?;
         }

@@ -190,7 +190,8 @@ mod tests {
         lower.dedup();
         assert_eq!(lower.len(), names.len());
         for n in &names {
-            let c: Vec<Component> = Path::new("out").join(n).components().collect();
+            let joined = Path::new("out").join(n);
+            let c: Vec<Component> = joined.components().collect();
             assert_eq!(c.len(), 2, "{n}");
             assert!(matches!(c[1], Component::Normal(_)), "{n}");
         }

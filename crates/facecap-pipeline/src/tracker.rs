@@ -35,7 +35,7 @@ pub const MAX_SINKS: usize = 64;
 
 /// Consecutive decode errors after which a damaged source is given up (each error
 /// consumes one frame index, so a source that keeps failing cannot loop for ever).
-pub const MAX_CONSECUTIVE_DECODE_ERRORS: u32 = 64;
+pub const MAX_CONSECUTIVE_DECODE_ERRORS: u32 = 10_000;
 
 /// What the decoding stage hands to tracking: a frame, or a frame that could not be
 /// decoded (salvage mode, [`RunControl::strict`] off).

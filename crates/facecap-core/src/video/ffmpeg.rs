@@ -197,6 +197,8 @@ pub struct ShowinfoFrame {
     pub width: u32,
     /// Frame height.
     pub height: u32,
+    /// Whether it is a keyframe (`iskey:1`; `false` when the line does not say).
+    pub key: bool,
 }
 
 /// What the stderr reader thread reports.
@@ -270,6 +272,7 @@ pub fn parse_showinfo_frame(line: &str) -> Option<ShowinfoFrame> {
         pts,
         width: w.parse().ok()?,
         height: h.parse().ok()?,
+        key: field_after(body, " iskey:").is_some_and(|t| leading_token(t) == "1"),
     })
 }
 
@@ -412,6 +415,9 @@ pub struct FfmpegSource {
     index_offset: u64,
     /// The error being returned concerns one dropped frame only: decoding goes on.
     skippable: bool,
+    /// Lenient mode: ffmpeg logged a decode error for the frame being read (concealed);
+    /// the error line.
+    damaged: Option<String>,
     done: bool,
 }
 
@@ -529,6 +535,7 @@ impl FfmpegSource {
             missing_reason: String::new(),
             index_offset: 0,
             skippable: false,
+            damaged: None,
             done: false,
         };
         // The frame count comes from ffprobe, started now so it runs while ffmpeg starts.
@@ -767,17 +774,25 @@ impl FfmpegSource {
         if !self.strict {
             // Frames ffmpeg dropped after a decode error show as a gap in the timestamps.
             let err = self.error_since_frame.take();
-            if let (Some(err), Some(last), Some(t)) = (err, self.last_time, time(&rep, self.time_base)) {
+            if let (Some(err), Some(last), Some(t)) = (&err, self.last_time, time(&rep, self.time_base)) {
                 let gap = ((t - last) * self.info.fps).round() - 1.0;
                 if gap >= 1.0 && gap <= MAX_DROPPED_RUN as f64 {
                     let gap = gap as u64;
                     self.index_offset += gap;
                     self.missing = gap;
                     self.missing_reason = err.trim().to_string();
+                    // the frame itself follows the error: it is checked again below
+                    self.error_since_frame = Some(err.clone());
                     self.pending = Some(rep);
                     return self.read_frame(frame);
                 }
             }
+            // A frame whose decoding logged an error is concealed (partly invented by
+            // ffmpeg): reported as damaged (its bytes are still read to keep the pipe in
+            // step). Frames predicted from it until the next keyframe may carry some of
+            // the concealment; they are kept (marking them all would throw away up to a
+            // whole group of pictures over a few damaged bytes; `strict` refuses them).
+            self.damaged = err.map(|e| e.trim().to_string());
         }
         if rep.n + self.index_offset != k {
             return Err(self.decode_err(
@@ -830,6 +845,13 @@ impl FfmpegSource {
         self.last_time = Some(frame.timestamp_s);
         self.error_since_frame = None;
         self.next_index += 1;
+        if let Some(e) = self.damaged.take() {
+            self.skippable = true;
+            return Err(self.decode_err(
+                Some(k),
+                format!("damaged: ffmpeg concealed a decode error in this frame ({e})"),
+            ));
+        }
         Ok(true)
     }
 }
@@ -884,7 +906,8 @@ mod tests {
                 n: 1,
                 pts: Some(3000),
                 width: 512,
-                height: 480
+                height: 480,
+                key: false
             }
         );
         let f = parse_showinfo_frame("n:1000 pts:1038000 pts_time:11.5333 pos: 1 fmt:yuv420p sar:0/1 s:480x480 i:P")
