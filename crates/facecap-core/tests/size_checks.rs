@@ -20,6 +20,9 @@ fn doc(accessors: &str, prim: &str, extra: &str) -> String {
     )
 }
 
+/// One sparse value (index 0) read from the start of the buffer.
+const SPARSE1: &str = r#""sparse":{"count":1,"indices":{"bufferView":0,"componentType":5125},"values":{"bufferView":0}}"#;
+
 const GOOD_POS: &str = r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#;
 
 #[test]
@@ -32,16 +35,16 @@ fn huge_counts_are_parse_errors_not_allocations() {
             r#"{"attributes":{"POSITION":0}}"#,
             "",
         ),
-        // POSITION without a buffer view (all zeros) claiming 2^31 elements.
+        // POSITION without a buffer view (zeros plus one sparse value) claiming 2^31 elements.
         doc(
-            &format!(r#"{{"componentType":5126,"count":{big},"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}"#),
+            &format!(r#"{{"componentType":5126,"count":{big},"type":"VEC3","min":[0,0,0],"max":[1,1,0],{SPARSE1}}}"#),
             r#"{"attributes":{"POSITION":0}}"#,
             "",
         ),
         // A morph target without a view claiming 2^31 deltas.
         doc(
             &format!(
-                r#"{GOOD_POS},{{"componentType":5126,"count":{big},"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}"#
+                r#"{GOOD_POS},{{"componentType":5126,"count":{big},"type":"VEC3","min":[0,0,0],"max":[1,1,0],{SPARSE1}}}"#
             ),
             r#"{"attributes":{"POSITION":0},"targets":[{"POSITION":1}]}"#,
             "",
