@@ -434,6 +434,19 @@ fn capture_one(
     progress: &crate::progress::Progress,
 ) -> anyhow::Result<serde_json::Value> {
     let started = Instant::now();
+    // An optional truth file beside the video is checked first: a malformed one is a
+    // warning (the capture goes on without it), not a failure after all the tracking.
+    let use_truth = match crate::truth::validate(video) {
+        Ok(()) => true,
+        Err(e) => {
+            eprintln!(
+                "warning: {}: ignoring its truth file: {}",
+                video.display(),
+                crate::error_text(&e)
+            );
+            false
+        }
+    };
     let source = facecap_pipeline::open_video_with(video, args.decode_threads, args.strict)?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
@@ -534,7 +547,11 @@ fn capture_one(
     )?;
     let frames = &result.frames;
     let names = &result.names;
-    let truth = crate::truth::evaluate(video, names, &frames_for_truth(frames))?;
+    let truth = if use_truth {
+        crate::truth::evaluate(video, names, &frames_for_truth(frames))?
+    } else {
+        None
+    };
     write_report(out_dir, video, setup, names, &result, truth.as_ref())?;
     let write_seconds = t.elapsed().as_secs_f64();
     let elapsed = started.elapsed().as_secs_f64();

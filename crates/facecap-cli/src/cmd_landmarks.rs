@@ -5,13 +5,20 @@
 //! default), and write
 //!
 //! * `<out>/<stem>_<face>.pts` per face (`face` = 0-based index, largest face
-//!   first; iBUG `.pts`, 1-based coordinates),
+//!   first; iBUG `.pts`, 1-based coordinates); `<stem>` is the input's file stem,
+//!   sanitised and made unique among the inputs (`a/img.png`, `b/img.png` give `img` and
+//!   `img-2`; [`facecap_core::paths::unique_output_names`]),
 //! * `<out>/summary.csv` with one row per face:
-//!   `image,face,left,top,right,bottom,score,num_points,pts_file`
+//!   `image,face,left,top,right,bottom,score,num_points,pts_file,error`
 //!   (dlib inclusive box in 0-based pixels; `score` is the detector's, empty for
-//!   `--box`; images without a face get one row with `face` = -1 and empty fields),
+//!   `--box`; images without a face get one row with `face` = -1 and empty fields; an
+//!   image that cannot be read or processed gets `face` = -1 and its `error`),
 //! * with `--draw`, `<out>/<stem>_landmarks.png`: the image with the boxes (green)
 //!   and points (red).
+//!
+//! A damaged image fails alone (its error also on stderr); the exit code is non-zero
+//! when no image could be processed, or with `--strict` when any could not. A `--box`
+//! that does not overlap an image is that image's error.
 //!
 //! A single video input (mp4, avi, mov, mkv, webm, y4m) is handed to the video
 //! mode ([`crate::cmd_landmarks_video`]).

@@ -90,6 +90,13 @@ pub fn build_expression_solve(
     let Some((cal, frames)) = calibration else {
         return Ok((solver, serde_json::Value::Null));
     };
+    if frames.is_empty() {
+        // No face anywhere: nothing to calibrate on; every frame is written as failed.
+        return Ok((
+            solver,
+            serde_json::json!({"mode": "skipped", "reason": "no tracked frame"}),
+        ));
+    }
     let c = cal
         .calibrate(&solver, &setup.rig, camera, frames)
         .map_err(Error::Calibration)?;
