@@ -184,12 +184,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     for (input, stem) in args.inputs.iter().zip(&stems) {
         // A damaged image fails alone: its row records the error, the others go on.
         if let Err(e) = process_image(
-            &args, input, stem, &sp, detector.as_ref(), det_ws.as_mut(), &mut ws, &mut points, &mut grey,
-            &mut csv, &mut total_faces,
+            &args,
+            input,
+            stem,
+            &sp,
+            detector.as_ref(),
+            det_ws.as_mut(),
+            &mut ws,
+            &mut points,
+            &mut grey,
+            &mut csv,
+            &mut total_faces,
         ) {
             let msg = crate::error_text(&e);
             eprintln!("error: {}: {msg}", input.display());
-            let _ = writeln!(csv, "{},-1,,,,,,0,,{}", csv_field(&input.display().to_string()), csv_field(&msg));
+            let _ = writeln!(
+                csv,
+                "{},-1,,,,,,0,,{}",
+                csv_field(&input.display().to_string()),
+                csv_field(&msg)
+            );
             failed += 1;
         }
     }

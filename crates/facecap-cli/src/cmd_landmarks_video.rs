@@ -59,8 +59,8 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
         shape_model: job.model.clone(),
         upsample: job.upsample,
     })?;
-    let source =
-        facecap_pipeline::open_video_with(&job.input, 1, job.strict).with_context(|| format!("opening {}", job.input.display()))?;
+    let source = facecap_pipeline::open_video_with(&job.input, 1, job.strict)
+        .with_context(|| format!("opening {}", job.input.display()))?;
     let frame_count = source.info().frame_count;
     std::fs::create_dir_all(&job.out_dir).with_context(|| format!("creating {}", job.out_dir.display()))?;
     let csv_path = job.out_dir.join("landmarks.csv");

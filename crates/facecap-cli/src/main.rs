@@ -120,9 +120,7 @@ pub(crate) fn capped_jobs(requested: Option<usize>, items: usize) -> usize {
     let cap = cores.min(items.max(1));
     match requested {
         Some(n) if n > cores => {
-            out::info(&format!(
-                "--jobs {n}: this machine has {cores} cores; using {cap}"
-            ));
+            out::info(&format!("--jobs {n}: this machine has {cores} cores; using {cap}"));
             cap
         }
         Some(n) => n.clamp(1, cap),

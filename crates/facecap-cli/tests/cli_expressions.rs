@@ -126,7 +126,9 @@ fn capture(data: &Path, out: &Path, extra: &[String]) -> PathBuf {
 #[test]
 fn weights_follow_mediapipe_on_a_real_clip() {
     let (Some(data), true) = (shared_data(), models_present()) else {
-        facecap_core::paths::skip_missing_data("weights_follow_mediapipe: shared data (liveportrait_d18) or the dlib models absent");
+        facecap_core::paths::skip_missing_data(
+            "weights_follow_mediapipe: shared data (liveportrait_d18) or the dlib models absent",
+        );
         return;
     };
     let dir = tempfile::tempdir().unwrap();

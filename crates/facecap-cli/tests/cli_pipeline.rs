@@ -354,7 +354,9 @@ fn animation_glb_moves_the_head_and_livelink_follows_the_pose() {
 /// (scene rate and range from summary.json, keys on whole frames, head curves present).
 fn blender_check(test: &str, capture: &Path) {
     if Command::new("blender").arg("--version").output().is_err() {
-        facecap_core::paths::skip(&format!("{test}: blender not installed (Debian: apt-get install blender)"));
+        facecap_core::paths::skip(&format!(
+            "{test}: blender not installed (Debian: apt-get install blender)"
+        ));
         return;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/blender_import.py");

@@ -42,7 +42,9 @@ fn photo(test: &str) -> Option<PathBuf> {
     facecap_core::paths::model_file_or_skip(test, "dlib_frontal_face_detector.svm")?;
     let p = facecap_core::paths::cache_dir()?.join("data").join("astronaut.png");
     if !p.is_file() {
-        facecap_core::paths::skip_missing_data(&format!("{test}: astronaut.png not in the cache (run scripts/setup.sh)"));
+        facecap_core::paths::skip_missing_data(&format!(
+            "{test}: astronaut.png not in the cache (run scripts/setup.sh)"
+        ));
         return None;
     }
     Some(p)
@@ -107,7 +109,10 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
         dir.join("cut.y4m"),
         frames_dir.clone(),
     ];
-    let o = run(facecap().args(["capture", "--quiet", "--json", "--out"]).arg(&out_dir).args(&inputs));
+    let o = run(facecap()
+        .args(["capture", "--quiet", "--json", "--out"])
+        .arg(&out_dir)
+        .args(&inputs));
     assert!(o.status.success(), "{}", stderr(&o));
     // The damage is reported on stderr even with --quiet.
     let err = stderr(&o);
@@ -129,7 +134,10 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
         .collect();
     assert_eq!(outs, want);
     // Nothing outside --out: its parent holds only D.
-    let parent: Vec<_> = std::fs::read_dir(dir.join("out")).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let parent: Vec<_> = std::fs::read_dir(dir.join("out"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(parent, ["D"]);
     for name in ["C0001", "C0001-2", "__"] {
         let s = json(&out_dir.join(name).join("summary.json"));
@@ -143,7 +151,10 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     assert_eq!(s["frames"], 12);
     assert_eq!(s["undecodable_frames"], 1);
     assert_eq!(s["failed_frames"][0]["frame"], 11);
-    assert!(s["failed_frames"][0]["reason"].as_str().unwrap().contains("truncated"), "{s}");
+    assert!(
+        s["failed_frames"][0]["reason"].as_str().unwrap().contains("truncated"),
+        "{s}"
+    );
     let ok = success_column(&cut.join("landmarks.csv"));
     assert_eq!(ok.len(), 12);
     assert!(!ok[11] && ok[..11].iter().filter(|&&x| x).count() >= 10, "{ok:?}");
@@ -152,8 +163,17 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     // match the Y4M's frame by frame).
     let fr = out_dir.join("frames");
     let s = json(&fr.join("summary.json"));
-    assert_eq!((s["frames"].as_u64(), s["undecodable_frames"].as_u64()), (Some(12), Some(1)));
-    assert!(s["failed_frames"][0]["reason"].as_str().unwrap().contains("frame_5.png"), "{s}");
+    assert_eq!(
+        (s["frames"].as_u64(), s["undecodable_frames"].as_u64()),
+        (Some(12), Some(1))
+    );
+    assert!(
+        s["failed_frames"][0]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("frame_5.png"),
+        "{s}"
+    );
     let a = read_landmarks_csv(out_dir.join("C0001").join("landmarks.csv")).unwrap();
     let b = read_landmarks_csv(fr.join("landmarks.csv")).unwrap();
     assert!(!b[4].success);
@@ -161,13 +181,20 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     // order index 1 would be frame_10.png (the Y4M's frame 9).
     let dist = |x: &facecap_core::csv::LandmarkRecord, y: &facecap_core::csv::LandmarkRecord| {
         let (l, m) = (x.landmarks.as_ref().unwrap(), y.landmarks.as_ref().unwrap());
-        l.points.iter().zip(&m.points).map(|(p, q)| (p - q).norm()).fold(0.0, f64::max)
+        l.points
+            .iter()
+            .zip(&m.points)
+            .map(|(p, q)| (p - q).norm())
+            .fold(0.0, f64::max)
     };
     for k in 0..4 {
         let d = dist(&a[k], &b[k]);
         assert!(d < 0.01, "frame {k}: folder and Y4M landmarks {d} px apart (order?)");
     }
-    assert!(dist(&a[1], &a[9]) > 0.1, "the clip must move for the order check to mean anything");
+    assert!(
+        dist(&a[1], &a[9]) > 0.1,
+        "the clip must move for the order check to mean anything"
+    );
     // --strict: the cut Y4M fails.
     let o = run(facecap()
         .args(["capture", "--quiet", "--strict", "--out"])
@@ -207,7 +234,10 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
         .arg(&bad));
     assert!(o.status.success(), "{}", stderr(&o));
     let err = stderr(&o);
-    assert!(err.contains("frame 3: implausible landmarks") && err.contains("frame 7: implausible landmarks"), "{err}");
+    assert!(
+        err.contains("frame 3: implausible landmarks") && err.contains("frame 7: implausible landmarks"),
+        "{err}"
+    );
     let w = read_landmarks_csv(solved.join("weights.csv"));
     let frames: Vec<u64> = match &w {
         Ok(rows) => rows.iter().map(|r| r.frame).collect(),
@@ -240,7 +270,9 @@ fn a_clip_without_a_face_is_not_a_neutral_take() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let clip = tmp.path().join("wall.y4m");
-    let frames: Vec<image::GrayImage> = (0..6).map(|k| image::GrayImage::from_pixel(320, 240, image::Luma([90 + k as u8]))).collect();
+    let frames: Vec<image::GrayImage> = (0..6)
+        .map(|k| image::GrayImage::from_pixel(320, 240, image::Luma([90 + k as u8])))
+        .collect();
     let mut f = std::fs::File::create(&clip).unwrap();
     facecap_core::video::y4m::write_gray_y4m(&mut f, &frames, 25, 1, false).unwrap();
     drop(f);
@@ -271,30 +303,50 @@ fn landmarks_names_damage_boxes_and_models() {
     let png = std::fs::read(&photo).unwrap();
     std::fs::write(dir.join("bad.png"), &png[..5000]).unwrap();
     let out = dir.join("pts");
-    let o = run(facecap()
-        .args(["landmarks", "--out"])
-        .arg(&out)
-        .args([dir.join("a/img.png"), dir.join("bad.png"), dir.join("b/img.png")]));
+    let o = run(facecap().args(["landmarks", "--out"]).arg(&out).args([
+        dir.join("a/img.png"),
+        dir.join("bad.png"),
+        dir.join("b/img.png"),
+    ]));
     assert!(o.status.success(), "{}", stderr(&o));
     let a = facecap_core::formats::pts::read_pts(out.join("img_0.pts")).unwrap();
     let b = facecap_core::formats::pts::read_pts(out.join("img-2_0.pts")).unwrap();
     assert_eq!(a, b, "the same photo twice gives the same points under two names");
     let csv = std::fs::read_to_string(out.join("summary.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().collect();
-    assert_eq!(rows[0], "image,face,left,top,right,bottom,score,num_points,pts_file,error");
+    assert_eq!(
+        rows[0],
+        "image,face,left,top,right,bottom,score,num_points,pts_file,error"
+    );
     assert!(rows[1].ends_with(",68,img_0.pts,"), "{csv}");
-    assert!(rows[2].contains("bad.png,-1,") && rows[2].contains("cannot decode"), "{csv}");
+    assert!(
+        rows[2].contains("bad.png,-1,") && rows[2].contains("cannot decode"),
+        "{csv}"
+    );
     assert!(rows[3].ends_with(",68,img-2_0.pts,"), "{csv}");
     // --strict: the damaged image fails the run; alone, it fails it anyway.
-    let o = run(facecap().args(["landmarks", "--strict", "--out"]).arg(dir.join("s")).arg(dir.join("a/img.png")).arg(dir.join("bad.png")));
+    let o = run(facecap()
+        .args(["landmarks", "--strict", "--out"])
+        .arg(dir.join("s"))
+        .arg(dir.join("a/img.png"))
+        .arg(dir.join("bad.png")));
     assert!(!o.status.success());
-    let o = run(facecap().args(["landmarks", "--out"]).arg(dir.join("s2")).arg(dir.join("bad.png")));
+    let o = run(facecap()
+        .args(["landmarks", "--out"])
+        .arg(dir.join("s2"))
+        .arg(dir.join("bad.png")));
     assert!(!o.status.success());
     // A box beside the 512x512 image is refused; one on it works.
-    let o = run(facecap().args(["landmarks", "--box", "5000,5000,6000,6000", "--out"]).arg(dir.join("bx")).arg(&photo));
+    let o = run(facecap()
+        .args(["landmarks", "--box", "5000,5000,6000,6000", "--out"])
+        .arg(dir.join("bx"))
+        .arg(&photo));
     assert!(!o.status.success());
     assert!(stderr(&o).contains("outside the 512x512 image"), "{}", stderr(&o));
-    let o = run(facecap().args(["landmarks", "--box", "175,76,265,166", "--out"]).arg(dir.join("bx2")).arg(&photo));
+    let o = run(facecap()
+        .args(["landmarks", "--box", "175,76,265,166", "--out"])
+        .arg(dir.join("bx2"))
+        .arg(&photo));
     assert!(o.status.success(), "{}", stderr(&o));
     // One bit flipped at byte 41 of the 68-point model: a copy under its own name fails
     // its sha256 against setup's SHA256SUMS; under another name, the plausibility check.
@@ -307,7 +359,12 @@ fn landmarks_names_damage_boxes_and_models() {
     std::fs::write(&same_name, &m).unwrap();
     std::fs::write(&other_name, &m).unwrap();
     for (p, what) in [(&same_name, "sha256"), (&other_name, "implausible model")] {
-        let o = run(facecap().args(["landmarks", "--model"]).arg(p).arg("--out").arg(dir.join("fm")).arg(&photo));
+        let o = run(facecap()
+            .args(["landmarks", "--model"])
+            .arg(p)
+            .arg("--out")
+            .arg(dir.join("fm"))
+            .arg(&photo));
         assert!(!o.status.success(), "{}", p.display());
         assert!(stderr(&o).contains(what), "{}: {}", p.display(), stderr(&o));
     }
@@ -320,13 +377,30 @@ fn contradictory_arguments_are_errors() {
     std::fs::write(&csv, "frame,timestamp,success,confidence\n").unwrap();
     let map = tmp.path().join("map.json");
     std::fs::write(&map, "[]").unwrap();
-    let o = run(facecap().args(["capture", "--landmark-map"]).arg(&map).arg("--out").arg(tmp.path().join("o")).arg("x.y4m"));
+    let o = run(facecap()
+        .args(["capture", "--landmark-map"])
+        .arg(&map)
+        .arg("--out")
+        .arg(tmp.path().join("o"))
+        .arg("x.y4m"));
     assert!(!o.status.success());
-    assert!(stderr(&o).contains("--landmark-map") && stderr(&o).contains("without --rig"), "{}", stderr(&o));
-    let o = run(facecap().args(["solve", "--method", "exact", "--landmark-map"]).arg(&map).arg("--out").arg(tmp.path().join("o")).arg(&csv));
+    assert!(
+        stderr(&o).contains("--landmark-map") && stderr(&o).contains("without --rig"),
+        "{}",
+        stderr(&o)
+    );
+    let o = run(facecap()
+        .args(["solve", "--method", "exact", "--landmark-map"])
+        .arg(&map)
+        .arg("--out")
+        .arg(tmp.path().join("o"))
+        .arg(&csv));
     assert!(!o.status.success());
     assert!(stderr(&o).contains("without --rig"), "{}", stderr(&o));
-    let o = run(facecap().args(["solve", "--method", "exact", "--shapes", "jawOpen,jawOpen", "--out"]).arg(tmp.path().join("o")).arg(&csv));
+    let o = run(facecap()
+        .args(["solve", "--method", "exact", "--shapes", "jawOpen,jawOpen", "--out"])
+        .arg(tmp.path().join("o"))
+        .arg(&csv));
     assert!(!o.status.success());
     assert!(stderr(&o).contains("listed twice"), "{}", stderr(&o));
 }

@@ -282,7 +282,9 @@ mod tests {
 /// beside it), for files another program writes (e.g. ffmpeg encoding a video) that
 /// are then renamed onto `path`. [`clean_stale_temps`] removes it if the process dies.
 pub fn temp_path_for(path: &Path) -> PathBuf {
-    let name = path.file_name().map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),

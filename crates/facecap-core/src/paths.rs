@@ -100,7 +100,9 @@ pub fn model_file_or_skip(test: &str, name: &str) -> Option<PathBuf> {
     match model_file(name) {
         Some(p) => Some(p),
         None => {
-            skip_missing_data(&format!("{test}: model {name} not in the model cache (run scripts/setup.sh)"));
+            skip_missing_data(&format!(
+                "{test}: model {name} not in the model cache (run scripts/setup.sh)"
+            ));
             None
         }
     }
@@ -145,7 +147,11 @@ pub fn unique_output_names(inputs: &[impl AsRef<std::path::Path>], fallback: &st
     inputs
         .iter()
         .map(|p| {
-            let stem = p.as_ref().file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            let stem = p
+                .as_ref()
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
             let base = sanitise_output_name(&stem, fallback);
             let mut name = base.clone();
             let mut k = 2u64;
@@ -183,7 +189,17 @@ mod tests {
         let names = unique_output_names(&inputs, "video");
         assert_eq!(
             names,
-            ["C0001", "C0001-2", "c0001-3", "__", "video", "video-2", "_hidden", "na_me_", "C0001-2-2"]
+            [
+                "C0001",
+                "C0001-2",
+                "c0001-3",
+                "__",
+                "video",
+                "video-2",
+                "_hidden",
+                "na_me_",
+                "C0001-2-2"
+            ]
         );
         let mut lower: Vec<String> = names.iter().map(|n| n.to_ascii_lowercase()).collect();
         lower.sort();

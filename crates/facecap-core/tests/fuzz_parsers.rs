@@ -54,7 +54,9 @@ fn pts_seed() -> Vec<u8> {
 }
 
 fn ljson_seed() -> Vec<u8> {
-    ljson_to_string(&Ljson::from_landmarks68("PTS", &face())).unwrap().into_bytes()
+    ljson_to_string(&Ljson::from_landmarks68("PTS", &face()))
+        .unwrap()
+        .into_bytes()
 }
 
 fn obj_seed() -> Vec<u8> {
@@ -110,7 +112,9 @@ fn map_seed() -> Vec<u8> {
 }
 
 fn y4m_seed() -> Vec<u8> {
-    let frames: Vec<image::GrayImage> = (0..3).map(|k| image::GrayImage::from_pixel(8, 6, image::Luma([40 * k]))).collect();
+    let frames: Vec<image::GrayImage> = (0..3)
+        .map(|k| image::GrayImage::from_pixel(8, 6, image::Luma([40 * k])))
+        .collect();
     let mut out = Vec::new();
     facecap_core::video::y4m::write_gray_y4m(&mut out, &frames, 25, 1, false).unwrap();
     out

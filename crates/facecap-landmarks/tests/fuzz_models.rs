@@ -3,9 +3,9 @@
 //! binary cache, the HOG detector `.svm`): every mutated file loads or is an error, never
 //! a panic or an abort. Inputs tried per target are the case counts below.
 
+mod ert_common;
 #[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
 mod fuzz_common;
-mod ert_common;
 
 use facecap_landmarks::detect::HogModel;
 use facecap_landmarks::ert::{ErtModel, ShapePredictor};

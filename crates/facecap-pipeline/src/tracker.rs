@@ -297,7 +297,11 @@ impl VideoTracker {
         let mut undecodable = Vec::new();
         let (decode_result, track_result, sink_result) = std::thread::scope(|scope| {
             let strict = control.strict;
-            let fps = if info.fps.is_finite() && info.fps > 0.0 { info.fps } else { 30.0 };
+            let fps = if info.fps.is_finite() && info.fps > 0.0 {
+                info.fps
+            } else {
+                30.0
+            };
             let decoder = scope.spawn(move || -> Result<f64> {
                 let mut busy = 0.0;
                 let (mut next_index, mut consecutive) = (0u64, 0u32);

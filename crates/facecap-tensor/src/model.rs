@@ -504,7 +504,10 @@ impl TensorModel {
         if (ni + ne).checked_mul(4).is_none_or(|b| b > remaining) {
             return Err(fmt_err(
                 r.pos,
-                format!("{} names (I={ni} + E={ne}) cannot fit in the {remaining} bytes left", ni + ne),
+                format!(
+                    "{} names (I={ni} + E={ne}) cannot fit in the {remaining} bytes left",
+                    ni + ne
+                ),
             ));
         }
         let mut names = Vec::with_capacity(ni + ne);

@@ -16,7 +16,10 @@ const CASES: u32 = 2000;
 
 fn seed() -> Vec<u8> {
     let d = synth::database(12, 3, 2, 5).unwrap();
-    TensorModel::build(&d, &HosvdParams::default()).unwrap().0.to_bytes(true)
+    TensorModel::build(&d, &HosvdParams::default())
+        .unwrap()
+        .0
+        .to_bytes(true)
 }
 
 proptest! {

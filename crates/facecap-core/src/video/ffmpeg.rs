@@ -135,7 +135,12 @@ pub fn file_url(path: &Path) -> std::ffi::OsString {
 /// The input options every ffmpeg/ffprobe call on a user's file gets (see
 /// [`PROTOCOL_WHITELIST`], [`FORMAT_WHITELIST`]).
 pub fn safe_input_args() -> [&'static str; 4] {
-    ["-protocol_whitelist", PROTOCOL_WHITELIST, "-format_whitelist", FORMAT_WHITELIST]
+    [
+        "-protocol_whitelist",
+        PROTOCOL_WHITELIST,
+        "-format_whitelist",
+        FORMAT_WHITELIST,
+    ]
 }
 
 /// The container's frame count of the first video stream (`nb_frames`), via ffprobe.
@@ -756,7 +761,10 @@ impl FfmpegSource {
             self.skippable = true;
             return Err(self.decode_err(
                 Some(k),
-                format!("ffmpeg could not decode this frame and dropped it ({})", self.missing_reason),
+                format!(
+                    "ffmpeg could not decode this frame and dropped it ({})",
+                    self.missing_reason
+                ),
             ));
         }
         let next = self.next_report()?;

@@ -50,7 +50,13 @@ impl ImageFolderSource {
                 ),
             });
         }
-        files.sort_by(|a, b| natural_cmp(&a.file_name().unwrap_or_default().to_string_lossy(), &b.file_name().unwrap_or_default().to_string_lossy()).then_with(|| a.cmp(b)));
+        files.sort_by(|a, b| {
+            natural_cmp(
+                &a.file_name().unwrap_or_default().to_string_lossy(),
+                &b.file_name().unwrap_or_default().to_string_lossy(),
+            )
+            .then_with(|| a.cmp(b))
+        });
         Self::from_files(dir, files, opts, SourceKind::ImageFolder)
     }
 
@@ -165,7 +171,11 @@ pub fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
             let (da, db) = (&a[si..i], &b[sj..j]);
             let ta = &da[da.iter().take_while(|&&c| c == b'0').count()..];
             let tb = &db[db.iter().take_while(|&&c| c == b'0').count()..];
-            let o = ta.len().cmp(&tb.len()).then_with(|| ta.cmp(tb)).then_with(|| da.len().cmp(&db.len()));
+            let o = ta
+                .len()
+                .cmp(&tb.len())
+                .then_with(|| ta.cmp(tb))
+                .then_with(|| da.len().cmp(&db.len()));
             if o != Ordering::Equal {
                 return o;
             }

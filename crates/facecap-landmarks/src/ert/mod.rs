@@ -76,8 +76,8 @@ use nalgebra::Point2;
 
 pub use cache::CacheStatus;
 pub use model::{
-    ErtModel, RegressionTree, SplitFeature, DLIB_SHAPE_PREDICTOR_VERSION, MAX_DELTA_ABS, MAX_LEAF_ABS, MEAN_SHAPE_RANGE,
-    MIN_MEAN_SHAPE_SPREAD,
+    ErtModel, RegressionTree, SplitFeature, DLIB_SHAPE_PREDICTOR_VERSION, MAX_DELTA_ABS, MAX_LEAF_ABS,
+    MEAN_SHAPE_RANGE, MIN_MEAN_SHAPE_SPREAD,
 };
 
 use crate::error::{Error, Result};

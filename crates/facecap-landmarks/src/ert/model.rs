@@ -236,8 +236,9 @@ impl ErtModel {
     /// shape outside [`MEAN_SHAPE_RANGE`], a degenerate mean shape, a leaf value above
     /// [`MAX_LEAF_ABS`] or a feature offset above [`MAX_DELTA_ABS`] means a damaged
     /// file (one flipped exponent bit makes a value thousands of times too large),
-    /// not a model. dlib's 68-point model stays well inside these bounds (mean shape in
-    /// [-0.05, 1.08], leaves below 0.12, offsets below 0.35; see the tests).
+    /// not a model. dlib's models stay well inside these bounds (68 points: mean shape in
+    /// [0.029, 1.070], leaves <= 0.061, offsets <= 0.187; 5 points: offsets <= 0.501;
+    /// `tests/ert_plausibility.rs`).
     fn check_plausible(&self) -> Result<()> {
         let (lo, hi) = MEAN_SHAPE_RANGE;
         if let Some(i) = self.initial_shape.iter().position(|&v| !(lo..=hi).contains(&v)) {
@@ -259,7 +260,10 @@ impl ErtModel {
             )));
         }
         for (ci, (trees, deltas)) in self.forests.iter().zip(&self.deltas).enumerate() {
-            if let Some(d) = deltas.iter().position(|d| d[0].abs() > MAX_DELTA_ABS || d[1].abs() > MAX_DELTA_ABS) {
+            if let Some(d) = deltas
+                .iter()
+                .position(|d| d[0].abs() > MAX_DELTA_ABS || d[1].abs() > MAX_DELTA_ABS)
+            {
                 return Err(model_err(format!(
                     "implausible model: cascade {ci} feature offset {d} = {:?} above {MAX_DELTA_ABS} face-box units",
                     deltas[d]
