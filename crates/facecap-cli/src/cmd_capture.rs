@@ -342,7 +342,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     // C0001-2; a name like `...mp4` cannot reach the parent folder).
     let out_names = facecap_core::paths::unique_output_names(&args.videos, "video");
     for (video, name) in args.videos.iter().zip(&out_names) {
-        if video.file_stem().is_none_or(|s| s.to_string_lossy() != name.as_str()) {
+        if video.file_stem().map_or(true, |s| s.to_string_lossy() != name.as_str()) {
             crate::out::info(&format!("{} -> {}", video.display(), args.out.join(name).display()));
         }
     }

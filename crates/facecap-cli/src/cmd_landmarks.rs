@@ -232,7 +232,7 @@ fn process_image(
     detector: Option<&facecap_landmarks::detect::FaceDetector>,
     det_ws: Option<&mut facecap_landmarks::detect::DetectWorkspace>,
     ws: &mut facecap_landmarks::ert::ErtWorkspace,
-    points: &mut Vec<Point2<f64>>,
+    points: &mut [Point2<f64>],
     grey: &mut GrayImage,
     csv: &mut String,
     total_faces: &mut usize,
@@ -274,7 +274,7 @@ fn process_image(
                 points.len(),
                 csv_field(&pts_name)
             );
-            drawn.push((*rect, points.clone()));
+            drawn.push((*rect, points.to_vec()));
         }
         if args.draw {
             let mut rgb = match facecap_core::image_io::load_rgb(input) {

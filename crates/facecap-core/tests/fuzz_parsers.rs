@@ -14,7 +14,7 @@ use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::landmarks::Landmarks68;
 use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
 use facecap_core::obj::{obj_to_string, parse_obj};
-use facecap_core::video::{open_source, Frame, FrameSource, SourceOptions};
+use facecap_core::video::{open_source, Frame, SourceOptions};
 use fuzz_common::{config, mutated};
 use nalgebra::{Point2, Point3, Vector3};
 use proptest::prelude::*;

@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use facecap_core::gltf_io::{read_morph_file_from_slice, read_morph_mesh_from_slice};
-use facecap_core::video::{open_source, Frame, FrameSource, SourceOptions};
+use facecap_core::video::{open_source, Frame, SourceOptions};
 use facecap_core::Error;
 
 /// Three vertices (36 bytes of f32) as a base64 data URI.

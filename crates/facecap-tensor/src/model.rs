@@ -501,7 +501,7 @@ impl TensorModel {
         // Every name takes at least its 4-byte length: check the counts against the bytes
         // present before reserving anything (a count of 0xFFFFFFFF must not reserve 100 GB).
         let remaining = r.b.len() - r.pos;
-        if (ni + ne).checked_mul(4).is_none_or(|b| b > remaining) {
+        if (ni + ne).checked_mul(4).map_or(true, |b| b > remaining) {
             return Err(fmt_err(
                 r.pos,
                 format!(
