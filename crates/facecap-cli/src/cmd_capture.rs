@@ -123,6 +123,12 @@ pub struct Args {
     /// Print a JSON summary of all videos on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Fail a video at its first undecodable frame. By default every decodable frame is
+    /// kept, undecodable ones are written with `success = 0` and counted in
+    /// `summary.json` (`undecodable_frames`) and on stderr, and a video fails only when
+    /// no frame at all could be decoded.
+    #[arg(long)]
+    pub strict: bool,
     /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
     /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
     /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
@@ -243,6 +249,12 @@ pub(crate) fn expression_parts(
             (mesh, map, path.display().to_string())
         }
         None => {
+            if let Some(m) = landmark_map {
+                anyhow::bail!(
+                    "--landmark-map {} is the map of a --rig; without --rig the built-in rig (with its own map) is used",
+                    m.display()
+                );
+            }
             let (mesh, map) = crate::default_rig::default_rig()?;
             (mesh, map, "built-in default rig".to_string())
         }
@@ -386,8 +398,10 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let interrupted = Arc::new(AtomicBool::new(false));
     {
         let flag = interrupted.clone();
-        // A second Ctrl-C exits at once; temporary files are then left under
-        // `.name.tmp-PID` names, never under final names.
+        // Ctrl-C, SIGTERM and SIGHUP stop at the next frame (unfinished captures are
+        // discarded, their temporary files removed); a second one exits at once, leaving
+        // temporary files under `.name.tmp-PID` names (never under final names), which
+        // the next run removes.
         let _ = ctrlc::set_handler(move || {
             if flag.swap(true, Ordering::SeqCst) {
                 std::process::exit(130);
@@ -396,18 +410,24 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     }
     let setup = build_setup(&args)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let jobs = args
-        .jobs
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-        .max(1);
+    let jobs = crate::capped_jobs(args.jobs, args.videos.len());
     let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build()?;
     let progress = crate::progress::Progress::new(crate::out::quiet());
     let t0 = Instant::now();
+    // One folder per input, unique and inside --out (two cards' C0001.MP4 get C0001 and
+    // C0001-2; a name like `...mp4` cannot reach the parent folder).
+    let out_names = facecap_core::paths::unique_output_names(&args.videos, "video");
+    for (video, name) in args.videos.iter().zip(&out_names) {
+        if video.file_stem().map_or(true, |s| s.to_string_lossy() != name.as_str()) {
+            crate::out::info(&format!("{} -> {}", video.display(), args.out.join(name).display()));
+        }
+    }
     let outcomes: Vec<(PathBuf, Outcome)> = pool.install(|| {
         args.videos
             .par_iter()
-            .map(|video| {
-                let out_dir = args.out.join(video_stem(video));
+            .zip(out_names.par_iter())
+            .map(|(video, out_name)| {
+                let out_dir = args.out.join(out_name);
                 let outcome = capture_video(video, &out_dir, &args, &setup, &interrupted, &progress);
                 (video.clone(), outcome)
             })
@@ -415,15 +435,16 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     });
     let mut all_ok = true;
     let mut report = Vec::new();
-    for (video, o) in &outcomes {
+    for ((video, o), name) in outcomes.iter().zip(&out_names) {
+        let out = args.out.join(name);
         match o {
-            Outcome::Done(v) => report.push(json!({"video": video, "status": "done", "summary": v})),
+            Outcome::Done(v) => report.push(json!({"video": video, "status": "done", "out": out, "summary": v})),
             Outcome::Skipped(d) => report.push(json!({"video": video, "status": "skipped", "out": d})),
             Outcome::Failed(e) => {
                 all_ok = false;
                 // every error once, on stderr, also with --quiet
                 eprintln!("error: {}: {e}", video.display());
-                report.push(json!({"video": video, "status": "failed", "error": e}))
+                report.push(json!({"video": video, "status": "failed", "out": out, "error": e}))
             }
         }
     }
@@ -432,7 +453,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             &json!({"videos": report, "seconds": t0.elapsed().as_secs_f64()}),
         )?);
     } else if !crate::out::quiet() {
-        for (video, o) in &outcomes {
+        for ((video, o), name) in outcomes.iter().zip(&out_names) {
             match o {
                 Outcome::Done(v) => crate::out::println(&format!(
                     "{}: {} frames, face on {}, {:.1} frames/s -> {}",
@@ -440,7 +461,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                     v["frames"],
                     v["faces_found"],
                     v["frames_per_second"].as_f64().unwrap_or(0.0),
-                    args.out.join(video_stem(video)).display()
+                    args.out.join(name).display()
                 )),
                 Outcome::Skipped(d) => crate::out::println(&format!(
                     "{}: skipped (already captured in {})",
@@ -515,9 +536,29 @@ fn capture_one(
     progress: &crate::progress::Progress,
 ) -> anyhow::Result<serde_json::Value> {
     let started = Instant::now();
-    let source = facecap_pipeline::open_video(video, args.decode_threads)?;
+    // An optional truth file beside the video is checked first: a malformed one is a
+    // warning (the capture goes on without it), not a failure after all the tracking.
+    let use_truth = match crate::truth::validate(video) {
+        Ok(()) => true,
+        Err(e) => {
+            eprintln!(
+                "warning: {}: ignoring its truth file: {}",
+                video.display(),
+                crate::error_text(&e)
+            );
+            false
+        }
+    };
+    let source = facecap_pipeline::open_video_with(video, args.decode_threads, args.strict)?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    // Temporary files of an earlier run that was killed (SIGKILL, power loss) go first.
+    for d in [out_dir.to_path_buf(), out_dir.join("report"), out_dir.join("obj")] {
+        let n = facecap_core::atomic::clean_stale_temps(&d);
+        if n > 0 {
+            crate::out::verbose(&format!("{}: removed {n} stale temporary files", d.display()));
+        }
+    }
     // A previous capture is being redone: remove its outputs (completion marker first),
     // so that none of them survives beside the new ones.
     facecap_pipeline::resume::clear_outputs(out_dir)?;
@@ -567,16 +608,20 @@ fn capture_one(
             &mut RunControl {
                 interrupted: Some(interrupted),
                 on_frame: Some(&mut inc),
+                strict: args.strict,
             },
         )?
     };
     bar.finish();
-    if run.frames == 0 {
+    if !crate::report_undecodable(video, &run) {
         anyhow::bail!("{}: no frames decoded", video.display());
     }
     let t = Instant::now();
     landmarks.finish()?;
     let result = solve.finish()?;
+    for (frame, e) in &run.rejected {
+        progress.line(&format!("{}: frame {frame}: {e}", video.display()));
+    }
     for (frame, e) in &result.failures {
         progress.line(&format!("{}: frame {frame}: solver failed: {e}", video.display()));
     }
@@ -632,7 +677,11 @@ fn capture_one(
     };
     let preview_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let truth = crate::truth::evaluate(video, names, &frames_for_truth(frames))?;
+    let truth = if use_truth {
+        crate::truth::evaluate(video, names, &frames_for_truth(frames))?
+    } else {
+        None
+    };
     let reference_dir = args
         .reference
         .clone()
@@ -680,6 +729,8 @@ fn capture_one(
             "file": PREVIEW_FILE, "frames": p.frames, "width": p.width, "height": p.height, "fps": p.fps,
             "decode_seconds": p.decode_seconds, "render_seconds": p.render_seconds, "encode_seconds": p.encode_seconds,
         })),
+        "undecodable_frames": run.undecodable.len(),
+        "failed_frames": failed_frames(&run.undecodable, &run.rejected, &result.failures),
         "mean_reprojection_px": if reproj.is_empty() { f64::NAN } else { reproj.iter().sum::<f64>() / reproj.len() as f64 },
         "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "shapes": names,
@@ -709,6 +760,23 @@ fn capture_one(
         report_seconds
     ));
     Ok(summary)
+}
+
+/// `summary.json`'s list of frames that are `success = 0` for a reason other than "no
+/// face found": `[{"frame", "reason"}]`, by frame.
+pub(crate) fn failed_frames(
+    undecodable: &[(u64, String)],
+    rejected: &[(u64, String)],
+    failures: &[(u64, String)],
+) -> serde_json::Value {
+    let mut all: Vec<(u64, &str)> = undecodable
+        .iter()
+        .chain(rejected)
+        .chain(failures)
+        .map(|(f, r)| (*f, r.as_str()))
+        .collect();
+    all.sort_by_key(|&(f, _)| f);
+    serde_json::Value::Array(all.into_iter().map(|(f, r)| json!({"frame": f, "reason": r})).collect())
 }
 
 fn frames_for_truth(frames: &[SolvedFrame]) -> Vec<crate::truth::Estimate> {

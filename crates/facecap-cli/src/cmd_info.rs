@@ -24,7 +24,6 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Context;
 use facecap_core::video::{open_source, Frame, Luma, SourceKind, SourceOptions, DEFAULT_FOLDER_FPS};
 use serde::Serialize;
 
@@ -70,6 +69,10 @@ pub struct InfoReport {
     pub fps: f64,
     /// Frames decoded.
     pub frames_decoded: u64,
+    /// Frames that could not be decoded (`--lenient`: dropped or damaged by a decode error).
+    pub frames_undecodable: u64,
+    /// The first such frame's error.
+    pub first_undecodable: Option<String>,
     /// Frame count stated by the container, if any.
     pub container_frames: Option<u64>,
     /// Timestamp of the first decoded frame (s).
@@ -102,15 +105,29 @@ pub fn inspect(path: &std::path::Path, opts: &SourceOptions) -> anyhow::Result<I
     let info = src.info().clone();
     let mut frame = Frame::default();
     let (mut n, mut first, mut last) = (0u64, 0.0, 0.0);
-    while src
-        .read_into(&mut frame)
-        .with_context(|| format!("decoding {} after {n} frames", path.display()))?
-    {
-        if n == 0 {
-            first = frame.timestamp_s;
+    let (mut bad, mut consecutive, mut first_bad) = (0u64, 0u32, None);
+    loop {
+        match src.read_into(&mut frame) {
+            Ok(false) => break,
+            Ok(true) => {
+                if n == 0 {
+                    first = frame.timestamp_s;
+                }
+                last = frame.timestamp_s;
+                n += 1;
+                consecutive = 0;
+            }
+            // Lenient: an undecodable frame is counted and decoding goes on (as capture's
+            // salvage mode does), up to the same limit of consecutive failures.
+            Err(e) if !opts.strict && consecutive < facecap_pipeline::tracker::MAX_CONSECUTIVE_DECODE_ERRORS => {
+                bad += 1;
+                consecutive += 1;
+                first_bad.get_or_insert_with(|| e.to_string());
+            }
+            Err(e) => {
+                return Err(anyhow::Error::new(e).context(format!("decoding {} after {n} frames", path.display())))
+            }
         }
-        last = frame.timestamp_s;
-        n += 1;
     }
     drop(src);
     let secs = start.elapsed().as_secs_f64();
@@ -123,6 +140,8 @@ pub fn inspect(path: &std::path::Path, opts: &SourceOptions) -> anyhow::Result<I
         height: info.height,
         fps: info.fps,
         frames_decoded: n,
+        frames_undecodable: bad,
+        first_undecodable: first_bad,
         container_frames: info.frame_count,
         first_timestamp_s: first,
         last_timestamp_s: last,
@@ -146,6 +165,9 @@ fn print_text(r: &InfoReport) {
     outln!("resolution:         {}x{}", r.width, r.height);
     outln!("fps:                {}", r.fps);
     outln!("frames decoded:     {}", r.frames_decoded);
+    if r.frames_undecodable > 0 {
+        outln!("frames undecodable: {}", r.frames_undecodable);
+    }
     if let Some(c) = r.container_frames {
         outln!("container frames:   {c}");
     }

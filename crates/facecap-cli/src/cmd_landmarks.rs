@@ -5,13 +5,20 @@
 //! default), and write
 //!
 //! * `<out>/<stem>_<face>.pts` per face (`face` = 0-based index, largest face
-//!   first; iBUG `.pts`, 1-based coordinates),
+//!   first; iBUG `.pts`, 1-based coordinates); `<stem>` is the input's file stem,
+//!   sanitised and made unique among the inputs (`a/img.png`, `b/img.png` give `img` and
+//!   `img-2`; [`facecap_core::paths::unique_output_names`]),
 //! * `<out>/summary.csv` with one row per face:
-//!   `image,face,left,top,right,bottom,score,num_points,pts_file`
+//!   `image,face,left,top,right,bottom,score,num_points,pts_file,error`
 //!   (dlib inclusive box in 0-based pixels; `score` is the detector's, empty for
-//!   `--box`; images without a face get one row with `face` = -1 and empty fields),
+//!   `--box`; images without a face get one row with `face` = -1 and empty fields; an
+//!   image that cannot be read or processed gets `face` = -1 and its `error`),
 //! * with `--draw`, `<out>/<stem>_landmarks.png`: the image with the boxes (green)
 //!   and points (red).
+//!
+//! A damaged image fails alone (its error also on stderr); the exit code is non-zero
+//! when no image could be processed, or with `--strict` when any could not. A `--box`
+//! that does not overlap an image is that image's error.
 //!
 //! A single video input (mp4, avi, mov, mkv, webm, y4m) is handed to the video
 //! mode ([`crate::cmd_landmarks_video`]).
@@ -73,6 +80,11 @@ pub struct Args {
     /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
     #[arg(long, value_name = "auto|N", default_value = "auto")]
     pub upsample: Upsample,
+    /// Exit non-zero when any image cannot be read or processed (by default such images
+    /// get a row with their error in `summary.csv`, the others are processed, and the
+    /// exit code is non-zero only when no image could be processed).
+    #[arg(long)]
+    pub strict: bool,
 }
 
 /// What the video mode receives from `facecap landmarks VIDEO ...`.
@@ -90,6 +102,8 @@ pub struct VideoJob {
     pub upsample: Upsample,
     /// `--smooth` was given.
     pub smooth: bool,
+    /// `--strict` was given (stop at the first undecodable frame).
+    pub strict: bool,
 }
 
 fn parse_box(s: &str) -> Result<Rect, String> {
@@ -137,6 +151,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             model: args.model.clone(),
             upsample: args.upsample,
             smooth: args.smooth,
+            strict: args.strict,
         };
         return run_video(&job);
     }
@@ -159,48 +174,107 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut ws = sp.new_workspace();
     let mut points = vec![Point2::origin(); sp.num_parts()];
-    let mut csv = String::from("image,face,left,top,right,bottom,score,num_points,pts_file\n");
+    let mut csv = String::from("image,face,left,top,right,bottom,score,num_points,pts_file,error\n");
     let mut total_faces = 0usize;
+    let mut failed = 0usize;
     let mut grey = GrayImage::new(0, 0);
-    for input in &args.inputs {
-        load_grey(input, args.grey, &mut grey).with_context(|| format!("reading {}", input.display()))?;
-        let faces: Vec<(Rect, Option<f64>)> = match (&args.face_box, &detector, det_ws.as_mut()) {
+    // Output names unique inside --out (a/img.png and b/img.png give img_0.pts and
+    // img-2_0.pts); summary.csv says which input went where.
+    let stems = facecap_core::paths::unique_output_names(&args.inputs, "image");
+    for (input, stem) in args.inputs.iter().zip(&stems) {
+        // A damaged image fails alone: its row records the error, the others go on.
+        if let Err(e) = process_image(
+            &args,
+            input,
+            stem,
+            &sp,
+            detector.as_ref(),
+            det_ws.as_mut(),
+            &mut ws,
+            &mut points,
+            &mut grey,
+            &mut csv,
+            &mut total_faces,
+        ) {
+            let msg = crate::error_text(&e);
+            eprintln!("error: {}: {msg}", input.display());
+            let _ = writeln!(
+                csv,
+                "{},-1,,,,,,0,,{}",
+                csv_field(&input.display().to_string()),
+                csv_field(&msg)
+            );
+            failed += 1;
+        }
+    }
+    let summary = args.out.join("summary.csv");
+    facecap_core::atomic::write_atomic(&summary, |w| std::io::Write::write_all(w, csv.as_bytes()))
+        .with_context(|| format!("writing {}", summary.display()))?;
+    eprintln!(
+        "{} image(s), {total_faces} face(s), {failed} failed; wrote {}",
+        args.inputs.len(),
+        summary.display()
+    );
+    Ok(if failed == args.inputs.len() || (args.strict && failed > 0) {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+/// One image of `facecap landmarks`: its `.pts` files, `summary.csv` rows and drawing.
+#[allow(clippy::too_many_arguments)]
+fn process_image(
+    args: &Args,
+    input: &Path,
+    stem: &str,
+    sp: &ShapePredictor,
+    detector: Option<&facecap_landmarks::detect::FaceDetector>,
+    det_ws: Option<&mut facecap_landmarks::detect::DetectWorkspace>,
+    ws: &mut facecap_landmarks::ert::ErtWorkspace,
+    points: &mut [Point2<f64>],
+    grey: &mut GrayImage,
+    csv: &mut String,
+    total_faces: &mut usize,
+) -> anyhow::Result<()> {
+    {
+        // the loaders name the file in their errors
+        load_grey(input, args.grey, grey)?;
+        if let Some(b) = &args.face_box {
+            check_box_in_image(b, grey.width(), grey.height())?;
+        }
+        let faces: Vec<(Rect, Option<f64>)> = match (&args.face_box, detector, det_ws) {
             (Some(b), _, _) => vec![(*b, None)],
             (None, Some(d), Some(dws)) => d
-                .detect(&grey, dws)
+                .detect(grey, dws)
                 .with_context(|| format!("detecting faces in {}", input.display()))?
                 .into_iter()
                 .map(|det| (det.rect, Some(det.score)))
                 .collect(),
             _ => Vec::new(),
         };
-        let stem = input
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .unwrap_or("image")
-            .to_string();
         let mut drawn = Vec::new();
+        let mut rows = String::new();
         if faces.is_empty() {
-            let _ = writeln!(csv, "{},-1,,,,,,0,", csv_field(&input.display().to_string()));
+            let _ = writeln!(rows, "{},-1,,,,,,0,,", csv_field(&input.display().to_string()));
             eprintln!("{}: no face found", input.display());
         }
         for (k, (rect, score)) in faces.iter().enumerate() {
-            sp.predict_into(&grey, rect, &mut ws, &mut points)
+            sp.predict_into(grey, rect, ws, points)
                 .with_context(|| format!("predicting landmarks in {}", input.display()))?;
             let pts_name = format!("{stem}_{k}.pts");
-            facecap_core::formats::pts::write_pts_points(args.out.join(&pts_name), &points)
+            facecap_core::formats::pts::write_pts_points(args.out.join(&pts_name), points)
                 .with_context(|| format!("writing {pts_name}"))?;
             let (l, t, r, b) = rect.to_dlib();
             let _ = writeln!(
-                csv,
-                "{},{k},{l},{t},{r},{b},{},{},{}",
+                rows,
+                "{},{k},{l},{t},{r},{b},{},{},{},",
                 csv_field(&input.display().to_string()),
                 score.map_or_else(String::new, |s| format!("{s:.6}")),
                 points.len(),
                 csv_field(&pts_name)
             );
-            drawn.push((*rect, points.clone()));
-            total_faces += 1;
+            drawn.push((*rect, points.to_vec()));
         }
         if args.draw {
             let mut rgb = match facecap_core::image_io::load_rgb(input) {
@@ -211,18 +285,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
                 draw_overlay(&mut rgb, rect, pts);
             }
             let png = args.out.join(format!("{stem}_landmarks.png"));
-            rgb.save(&png).with_context(|| format!("writing {}", png.display()))?;
+            let bytes = crate::report::png_bytes_fast(&rgb)?;
+            facecap_core::atomic::write_atomic(&png, |w| std::io::Write::write_all(w, &bytes))
+                .with_context(|| format!("writing {}", png.display()))?;
         }
+        csv.push_str(&rows);
+        *total_faces += drawn.len();
     }
-    let summary = args.out.join("summary.csv");
-    facecap_core::atomic::write_atomic(&summary, |w| std::io::Write::write_all(w, csv.as_bytes()))
-        .with_context(|| format!("writing {}", summary.display()))?;
-    eprintln!(
-        "{} image(s), {total_faces} face(s); wrote {}",
-        args.inputs.len(),
-        summary.display()
-    );
-    Ok(ExitCode::SUCCESS)
+    Ok(())
+}
+
+/// A `--box` must overlap the image (a box beside it gives points predicted from
+/// nothing but the mean shape).
+fn check_box_in_image(b: &Rect, width: u32, height: u32) -> anyhow::Result<()> {
+    let (l, t, r, bt) = b.to_dlib();
+    if r < 0 || bt < 0 || l >= i64::from(width) || t >= i64::from(height) {
+        bail!("--box {l},{t},{r},{bt} lies outside the {width}x{height} image");
+    }
+    Ok(())
 }
 
 /// Video mode: hands a single video input to the tracker's command

@@ -43,9 +43,9 @@ impl Sink for DrawSink {
         let Some(gray) = &face.gray else { return Ok(()) };
         draw(gray, face, &mut self.canvas);
         let p = self.dir.join(format!("frame_{:06}.png", face.index));
-        self.canvas.save(&p).map_err(|e| facecap_pipeline::Error::Sink {
+        crate::save_png_atomic(&self.canvas, &p).map_err(|e| facecap_pipeline::Error::Sink {
             sink: format!("writing {}", p.display()),
-            source: Box::new(e),
+            source: e.into(),
         })
     }
 }
@@ -59,8 +59,8 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
         shape_model: job.model.clone(),
         upsample: job.upsample,
     })?;
-    let source =
-        facecap_pipeline::open_video(&job.input, 1).with_context(|| format!("opening {}", job.input.display()))?;
+    let source = facecap_pipeline::open_video_with(&job.input, 1, job.strict)
+        .with_context(|| format!("opening {}", job.input.display()))?;
     let frame_count = source.info().frame_count;
     std::fs::create_dir_all(&job.out_dir).with_context(|| format!("creating {}", job.out_dir.display()))?;
     let csv_path = job.out_dir.join("landmarks.csv");
@@ -89,10 +89,15 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
             &mut RunControl {
                 interrupted: None,
                 on_frame: Some(&mut inc),
+                strict: job.strict,
             },
         )?
     };
     bar.finish();
+    let decoded = crate::report_undecodable(&job.input, &report);
+    if !decoded {
+        anyhow::bail!("{}: no frame could be decoded", job.input.display());
+    }
     csv.finish()?;
     let (n, ok) = (report.frames, report.faces);
     crate::out::info(&format!(

@@ -162,7 +162,9 @@ fn run_bake(a: BakeArgs) -> anyhow::Result<std::process::ExitCode> {
     let baked = bake(&rig, &mm)?;
     facecap_core::gltf_io::write_glb(&a.out, &baked, None).with_context(|| format!("writing {}", a.out.display()))?;
     if let Some(p) = &a.write_set {
-        std::fs::write(p, set.to_json_string()?).with_context(|| format!("writing {}", p.display()))?;
+        let text = set.to_json_string()?;
+        facecap_core::atomic::write_atomic(p, |w| w.write_all(text.as_bytes()))
+            .with_context(|| format!("writing {}", p.display()))?;
     }
     eprintln!(
         "{}: {} muscles + {} baked as morph targets ({} vertices); wrote {}",
@@ -183,6 +185,9 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
     };
     let (mm, map, _set, rig) = load(&a.mesh, &a.landmark_map, a.muscles.as_deref())?;
     let setup = MuscleSetup::from_rig(rig.clone(), &map, mode)?;
+    // posed.glb's rig is baked before any tracking: a mesh that cannot be baked (an OBJ
+    // cut in half) fails here, before contractions.csv is written.
+    let baked = bake(&rig, &mm)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     // The landmarks: a CSV replayed, or the video tracked (the pipeline's one tracker).
     let (records, source) = match &a.landmarks {
@@ -222,7 +227,6 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
     let history = sink.finish()?;
     // posed.glb: the baked rig, muscle weights = contractions, jaw_open = jaw / max angle
     // (a linearisation of the rotation); one keyframe per frame at frame / fps.
-    let baked = bake(&rig, &mm)?;
     let n_old = mm.targets.len();
     let max_jaw = rig.max_jaw();
     let fps = report

@@ -121,7 +121,12 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             LandmarkMap::from_json_file(m)?,
             r.display().to_string(),
         ),
-        _ => {
+        (Some(_), None) => bail!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"),
+        (None, Some(m)) => bail!(
+            "--landmark-map {} is the map of a --rig; without --rig the built-in rig (with its own map) is used",
+            m.display()
+        ),
+        (None, None) => {
             let (mesh, map) = crate::default_rig::default_rig()?;
             (mesh, map, "built-in default rig".to_string())
         }
@@ -133,14 +138,30 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             if names.is_empty() {
                 bail!("--shapes {list:?}: no blendshape names given");
             }
+            let mut seen = std::collections::HashSet::new();
+            if let Some(d) = names.iter().find(|n| !seen.insert(**n)) {
+                bail!("--shapes {list:?}: {d} is listed twice");
+            }
             rig.select(&names).with_context(|| format!("--shapes {list:?}"))?
         }
         None => rig,
     };
-    let records = facecap_pipeline::openface::read_landmarks(&args.landmarks)
+    let mut records = facecap_pipeline::openface::read_landmarks(&args.landmarks)
         .with_context(|| format!("reading {}", args.landmarks.display()))?;
     if records.is_empty() {
         bail!("{} has no frames", args.landmarks.display());
+    }
+    // Rows are solved in frame order (the temporal term and the animation need it),
+    // whatever order the file lists them in; a frame listed twice is an error.
+    if records.windows(2).any(|w| w[1].frame <= w[0].frame) {
+        records.sort_by_key(|r| r.frame);
+        if let Some(w) = records.windows(2).find(|w| w[1].frame == w[0].frame) {
+            bail!("{}: frame {} is listed twice", args.landmarks.display(), w[0].frame);
+        }
+        crate::out::info(&format!(
+            "{}: rows are not in frame order; solved in frame order",
+            args.landmarks.display()
+        ));
     }
     let fps = match args.fps {
         Some(f) if f.is_finite() && f > 0.0 => f,
@@ -175,9 +196,12 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             .then_some(&hook as &dyn facecap_pipeline::NeutralCalibration),
         FrameImages::None,
     )?;
-    facecap_pipeline::replay(&records, &mut [&mut sink])?;
+    let replayed = facecap_pipeline::replay(&records, &mut [&mut sink])?;
     let solve_seconds = t0.elapsed().as_secs_f64();
     let result = sink.finish()?;
+    for (frame, e) in &replayed.rejected {
+        crate::out::info(&format!("frame {frame}: {e}"));
+    }
     for (frame, e) in &result.failures {
         crate::out::info(&format!("frame {frame}: solver failed: {e}"));
     }

@@ -238,7 +238,7 @@ fn reanimate(
                 }
             }
         }
-        out.save(dir.join(format!("frame_{f:05}.png")))
+        crate::save_png_atomic(&out, &dir.join(format!("frame_{f:05}.png")))
             .with_context(|| format!("writing reanimation frame {f}"))?;
         written += 1;
     }
@@ -253,11 +253,13 @@ fn reanimate(
             s.info().fps
         };
         let ffmpeg = facecap_core::video::ffmpeg::locate_ffmpeg(None)?;
+        let tmp_video = facecap_core::atomic::temp_path_for(video);
         let st = std::process::Command::new(ffmpeg)
-            .args(["-y", "-loglevel", "error", "-framerate"])
+            .args(["-nostdin", "-y", "-loglevel", "error", "-framerate"])
             .arg(format!("{fps}"))
+            .args(["-protocol_whitelist", "file"])
             .arg("-i")
-            .arg(dir.join("frame_%05d.png"))
+            .arg(facecap_core::video::ffmpeg::file_url(&dir.join("frame_%05d.png")))
             .args([
                 "-c:v",
                 "libx264",
@@ -266,12 +268,20 @@ fn reanimate(
                 "-vf",
                 "pad=ceil(iw/2)*2:ceil(ih/2)*2",
             ])
-            .arg(video)
+            // Encoded beside the final name, then renamed: a kill leaves no partial
+            // video under it, and the output name is a `file:` URL (never a protocol or
+            // an option).
+            .args(["-f", "mp4"])
+            .arg(facecap_core::video::ffmpeg::file_url(&tmp_video))
+            .stdin(std::process::Stdio::null())
             .status()
             .context("running ffmpeg")?;
         if !st.success() {
+            let _ = std::fs::remove_file(&tmp_video);
             bail!("ffmpeg failed to encode {}", video.display());
         }
+        std::fs::rename(&tmp_video, video)
+            .with_context(|| format!("renaming {} to {}", tmp_video.display(), video.display()))?;
         outln!("reanimation video -> {}", video.display());
     }
     Ok(())

@@ -120,3 +120,42 @@ pub(crate) fn error_text(e: &anyhow::Error) -> String {
     }
     text
 }
+
+/// Worker threads for `--jobs`: the request, or the number of cores, capped at the
+/// cores the machine has and at the number of `items` (one per video); a larger
+/// request is capped with a note on stderr (a pool of 100,000 threads only thrashes).
+pub(crate) fn capped_jobs(requested: Option<usize>, items: usize) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cap = cores.min(items.max(1));
+    match requested {
+        Some(n) if n > cores => {
+            out::info(&format!("--jobs {n}: this machine has {cores} cores; using {cap}"));
+            cap
+        }
+        Some(n) => n.clamp(1, cap),
+        None => cap,
+    }
+}
+
+/// Writes an RGB image as PNG atomically (temporary file + rename: a kill leaves no
+/// partial PNG under its final name).
+pub(crate) fn save_png_atomic(img: &image::RgbImage, path: &std::path::Path) -> anyhow::Result<()> {
+    let bytes = report::png_bytes_fast(img)?;
+    facecap_core::atomic::write_atomic(path, |w| std::io::Write::write_all(w, &bytes))?;
+    Ok(())
+}
+
+/// Prints on stderr (also with `--quiet`) what salvage mode did with a damaged input:
+/// how many frames could not be decoded, and the first reason. Returns whether any
+/// frame was decoded.
+pub(crate) fn report_undecodable(input: &std::path::Path, run: &facecap_pipeline::RunReport) -> bool {
+    let bad = run.undecodable.len() as u64;
+    if let Some((first, why)) = run.undecodable.first() {
+        eprintln!(
+            "warning: {}: {bad} of {} frames could not be decoded (success = 0); first at frame {first}: {why}",
+            input.display(),
+            run.frames
+        );
+    }
+    run.frames > bad
+}

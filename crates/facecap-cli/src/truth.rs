@@ -31,6 +31,19 @@ pub fn truth_path(video: &Path) -> Option<std::path::PathBuf> {
     p.is_file().then_some(p)
 }
 
+/// Reads the truth file beside `video` (if any) without evaluating: a capture checks it
+/// before tracking, so a malformed file is known before the work is done.
+///
+/// # Errors
+/// The file cannot be read or is not a per-frame CSV with landmark columns.
+pub fn validate(video: &Path) -> anyhow::Result<()> {
+    if let Some(path) = truth_path(video) {
+        let table = facecap_core::csv::read_frame_csv(&path)?;
+        facecap_core::csv::landmarks_from_table(&table)?;
+    }
+    Ok(())
+}
+
 /// Errors against the truth file beside `video`; `None` when there is none.
 pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Result<Option<serde_json::Value>> {
     let Some(path) = truth_path(video) else { return Ok(None) };

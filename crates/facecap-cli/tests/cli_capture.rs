@@ -34,7 +34,9 @@ fn synth_then_capture_with_a_bad_video() {
         .filter_map(|r| facecap_core_cache().map(|c| c.join(r)))
         .find(|p| p.is_file());
     let (Some(photo), true) = (photo, model_present()) else {
-        eprintln!("SKIP: synth_then_capture: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)");
+        facecap_core::paths::skip_missing_data(
+            "synth_then_capture: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)",
+        );
         return;
     };
     let dir = tempfile::tempdir().unwrap();

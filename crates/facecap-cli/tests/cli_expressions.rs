@@ -126,7 +126,9 @@ fn capture(data: &Path, out: &Path, extra: &[String]) -> PathBuf {
 #[test]
 fn weights_follow_mediapipe_on_a_real_clip() {
     let (Some(data), true) = (shared_data(), models_present()) else {
-        eprintln!("SKIP: weights_follow_mediapipe: shared data (liveportrait_d18) or the dlib models absent");
+        facecap_core::paths::skip_missing_data(
+            "weights_follow_mediapipe: shared data (liveportrait_d18) or the dlib models absent",
+        );
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -145,7 +147,7 @@ fn weights_follow_mediapipe_on_a_real_clip() {
     }
     let ict = data.join("models3d/ict_facekit");
     if !ict.join("ict_face_arkit53.glb").is_file() {
-        eprintln!("SKIP: ICT part: {} absent", ict.display());
+        facecap_core::paths::skip_missing_data(&format!("ICT part: {} absent", ict.display()));
         return;
     }
     let args = vec![

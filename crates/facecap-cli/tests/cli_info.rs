@@ -64,7 +64,7 @@ fn info_on_shared_clip_matches_ffprobe_numbers() {
         return;
     };
     if let Err(e) = facecap_core::video::ffmpeg::locate_ffmpeg(None) {
-        eprintln!("SKIP: info_on_shared_clip: {e}");
+        facecap_core::paths::skip(&format!("info_on_shared_clip: {e}"));
         return;
     }
     let out = facecap(&["info".as_ref(), "--json".as_ref(), p.as_os_str()]);

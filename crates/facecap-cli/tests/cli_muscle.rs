@@ -31,7 +31,7 @@ fn track_writes_contractions_posed_mesh_and_report() {
         return;
     };
     if !models_present() {
-        eprintln!("SKIP: {T}: dlib models not in the cache (run scripts/setup.sh)");
+        facecap_core::paths::skip_missing_data(&format!("{T}: dlib models not in the cache (run scripts/setup.sh)"));
         return;
     }
     let dir = tempfile::tempdir().unwrap();

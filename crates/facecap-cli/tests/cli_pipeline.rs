@@ -60,7 +60,7 @@ fn trimmed_clip(test: &str, dir: &Path, frames: usize) -> Option<PathBuf> {
         .status()
         .is_ok_and(|s| s.success());
     if !ok {
-        eprintln!("SKIP: {test}: ffmpeg could not cut the clip");
+        facecap_core::paths::skip(&format!("{test}: ffmpeg could not cut the clip"));
         return None;
     }
     Some(out)
@@ -342,9 +342,9 @@ fn animation_glb_moves_the_head_and_livelink_follows_the_pose() {
         .arg(cap.join("animation.glb"))
         .output()
     {
-        Ok(o) if o.status.code() == Some(2) => eprintln!("SKIP: {T}: glTF validator not available"),
+        Ok(o) if o.status.code() == Some(2) => facecap_core::paths::skip(&format!("{T}: glTF validator not available")),
         Ok(o) => assert!(o.status.success(), "validator: {}", String::from_utf8_lossy(&o.stdout)),
-        Err(_) => eprintln!("SKIP: {T}: bash not available"),
+        Err(_) => facecap_core::paths::skip(&format!("{T}: bash not available")),
     }
     blender_check(T, &cap);
     blender_check(T, &dir.path().join("b/liveportrait_d18"));
@@ -354,7 +354,9 @@ fn animation_glb_moves_the_head_and_livelink_follows_the_pose() {
 /// (scene rate and range from summary.json, keys on whole frames, head curves present).
 fn blender_check(test: &str, capture: &Path) {
     if Command::new("blender").arg("--version").output().is_err() {
-        eprintln!("SKIP: {test}: blender not installed (Debian: apt-get install blender)");
+        facecap_core::paths::skip(&format!(
+            "{test}: blender not installed (Debian: apt-get install blender)"
+        ));
         return;
     }
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/blender_import.py");

@@ -336,7 +336,7 @@ fn shared_ict_model_fit_and_transfer() {
         st.success().then_some(out)
     };
     let (Some(va), Some(vb)) = (trim(&va, "a.mp4"), trim(&vb, "b.mp4")) else {
-        eprintln!("SKIP: cli_tensor_shared: ffmpeg could not trim the clips");
+        facecap_core::paths::skip("cli_tensor_shared: ffmpeg could not trim the clips");
         return;
     };
     let model = dir.path().join("ict.fctensor");

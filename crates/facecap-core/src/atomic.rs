@@ -277,3 +277,81 @@ mod tests {
         assert_eq!(entries(dir.path()), vec!["d.txt".to_string()]);
     }
 }
+
+/// The temporary name [`AtomicFile`] would use first for `path` (`.<name>.tmp-<pid>`
+/// beside it), for files another program writes (e.g. ffmpeg encoding a video) that
+/// are then renamed onto `path`. [`clean_stale_temps`] removes it if the process dies.
+pub fn temp_path_for(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |n| n.to_string_lossy().into_owned());
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    dir.join(format!(".{name}.tmp-{}", std::process::id()))
+}
+
+/// The process id in a temporary name `.<name>.tmp-<pid>[-<n>]`, if it is one.
+fn temp_owner(file_name: &str) -> Option<u32> {
+    let rest = file_name.strip_prefix('.')?;
+    let (_, tail) = rest.rsplit_once(".tmp-")?;
+    let pid = tail.split('-').next()?;
+    pid.parse().ok()
+}
+
+/// Whether process `pid` is alive (Linux: `/proc/<pid>` exists; elsewhere assumed alive,
+/// so nothing is removed).
+fn process_alive(pid: u32) -> bool {
+    if !Path::new("/proc/self").exists() {
+        return true;
+    }
+    pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Removes temporary files of [`AtomicFile`] left in `dir` (not recursively) by processes
+/// that no longer run (killed with SIGKILL, or a power loss); returns how many were
+/// removed. Files of running processes, and every other file, are left alone.
+pub fn clean_stale_temps(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(pid) = temp_owner(&name.to_string_lossy()) else {
+            continue;
+        };
+        if !process_alive(pid) && e.file_type().is_ok_and(|t| t.is_file()) && std::fs::remove_file(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod stale_tests {
+    use super::*;
+
+    #[test]
+    fn stale_temps_of_dead_processes_are_removed_others_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        // pid 0x7FFFFFF0 cannot exist (above Linux's pid_max limit of 2^22).
+        let dead = dir.path().join(".landmarks.csv.tmp-2147483632");
+        let dead2 = dir.path().join(".summary.json.tmp-2147483632-3");
+        let mine = temp_path_for(&dir.path().join("weights.csv"));
+        let other = dir.path().join("notes.tmp-1");
+        for p in [&dead, &dead2, &mine, &other] {
+            std::fs::write(p, b"x").unwrap();
+        }
+        let n = clean_stale_temps(dir.path());
+        if Path::new("/proc/self").exists() {
+            assert_eq!(n, 2);
+            assert!(!dead.exists() && !dead2.exists());
+        }
+        assert!(mine.exists() && other.exists());
+        assert_eq!(temp_owner(".a.csv.tmp-12-4"), Some(12));
+        assert_eq!(temp_owner("a.csv"), None);
+    }
+}

@@ -529,13 +529,53 @@ fn accessor_bytes(acc: &gltf::Accessor, buffers: &[&[u8]], what: &str) -> Result
     let total = count
         .checked_mul(elem)
         .ok_or_else(|| perr(format!("count {count} too large")))?;
-    let mut out = vec![0u8; total];
-    if let Some(view) = acc.view() {
-        let stride = view.stride().unwrap_or(elem);
-        if stride < elem {
-            return Err(perr(format!("byteStride {stride} smaller than element size {elem}")));
+    // Every size read from the file is checked against the bytes present before
+    // anything is allocated: a dense accessor's last element must lie inside its view;
+    // an accessor without a view (zeros plus sparse values) may not claim more bytes
+    // than all buffers hold together (nothing else bounds it).
+    let dense = match acc.view() {
+        Some(view) => {
+            let stride = view.stride().unwrap_or(elem);
+            if stride < elem {
+                return Err(perr(format!("byteStride {stride} smaller than element size {elem}")));
+            }
+            let data = view_slice(&view, buffers).ok_or_else(|| perr("buffer view out of buffer bounds".into()))?;
+            if count > 0 {
+                let end = (count - 1)
+                    .checked_mul(stride)
+                    .and_then(|x| x.checked_add(acc.offset()))
+                    .and_then(|x| x.checked_add(elem));
+                match end {
+                    Some(end) if end <= data.len() => {}
+                    _ => {
+                        return Err(perr(format!(
+                            "count {count} x stride {stride} + offset {} exceeds its buffer view of {} bytes",
+                            acc.offset(),
+                            data.len()
+                        )))
+                    }
+                }
+            }
+            Some((data, stride))
         }
-        let data = view_slice(&view, buffers).ok_or_else(|| perr("buffer view out of buffer bounds".into()))?;
+        None => {
+            let present: usize = buffers.iter().map(|b| b.len()).sum();
+            if total > present {
+                return Err(perr(format!(
+                    "count {count} without a buffer view needs {total} bytes, the file's buffers hold {present}"
+                )));
+            }
+            None
+        }
+    };
+    if let Some(sparse) = acc.sparse() {
+        let m = sparse.count();
+        if m > count {
+            return Err(perr(format!("sparse count {m} > accessor count {count}")));
+        }
+    }
+    let mut out = vec![0u8; total];
+    if let Some((data, stride)) = dense {
         for i in 0..count {
             let start = acc
                 .offset()

@@ -31,6 +31,7 @@ pub mod align;
 pub mod atomic;
 pub mod bridge;
 pub mod camera;
+pub mod checksum;
 pub mod csv;
 pub mod epnp;
 pub mod formats;

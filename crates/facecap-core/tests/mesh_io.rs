@@ -92,7 +92,9 @@ fn khronos_validate(test: &str, files: &[&Path]) -> bool {
             .is_ok_and(|o| o.status.success())
     };
     if !have("node") || !have("npm") {
-        eprintln!("SKIP: {test}: node/npm not installed, Khronos glTF validator not run");
+        facecap_core::paths::skip(&format!(
+            "{test}: node/npm not installed, Khronos glTF validator not run"
+        ));
         return false;
     }
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/validate_gltf.sh");
@@ -103,7 +105,9 @@ fn khronos_validate(test: &str, files: &[&Path]) -> bool {
     match out.status.code() {
         Some(0) => true,
         Some(2) => {
-            eprintln!("SKIP: {test}: glTF validator could not be installed or run: {stderr}");
+            facecap_core::paths::skip(&format!(
+                "{test}: glTF validator could not be installed or run: {stderr}"
+            ));
             false
         }
         _ => panic!("Khronos glTF validator reported errors:\n{stdout}\n{stderr}"),
@@ -599,7 +603,7 @@ fn validator_script_rejects_a_broken_file() {
             .is_ok_and(|o| o.status.success())
     };
     if !have("node") || !have("npm") {
-        eprintln!("SKIP: {test}: node/npm not installed");
+        facecap_core::paths::skip(&format!("{test}: node/npm not installed"));
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -617,7 +621,7 @@ fn validator_script_rejects_a_broken_file() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     eprintln!("{stdout}");
     match out.status.code() {
-        Some(2) => eprintln!("SKIP: {test}: validator unavailable"),
+        Some(2) => facecap_core::paths::skip(&format!("{test}: validator unavailable")),
         Some(1) => assert!(stdout.contains("errors="), "{stdout}"),
         other => panic!("validator accepted a broken file ({other:?}):\n{stdout}"),
     }

@@ -21,7 +21,7 @@ fn ffmpeg_or_skip(test: &str) -> Option<PathBuf> {
     match locate_ffmpeg(None) {
         Ok(p) => Some(p),
         Err(e) => {
-            eprintln!("SKIP: {test}: {e}");
+            facecap_core::paths::skip(&format!("{test}: {e}"));
             None
         }
     }
@@ -114,7 +114,7 @@ fn check_shared_clip(test: &str, name: &str, frames: u64, size: (u32, u32), fps:
                 assert!((t - p).abs() <= 6e-7, "{name} frame {k}: {t} vs ffprobe {p}");
             }
         }
-        None => eprintln!("SKIP: {test}: ffprobe not found, timestamps not compared"),
+        None => facecap_core::paths::skip(&format!("{test}: ffprobe not found, timestamps not compared")),
     }
 }
 

@@ -38,11 +38,11 @@ fn detections_match_dlib_on_shared_images_and_frames() {
         return;
     };
     if paths::shared_data_dir().is_none() {
-        eprintln!("SKIP: detect_dlib_fixture: shared data absent");
+        facecap_core::paths::skip_missing_data("detect_dlib_fixture: shared data absent");
         return;
     }
     if !have_ffmpeg() {
-        eprintln!("SKIP: detect_dlib_fixture: ffmpeg not installed");
+        facecap_core::paths::skip_missing_data("detect_dlib_fixture: ffmpeg not installed");
         return;
     }
     let fx = fixture();

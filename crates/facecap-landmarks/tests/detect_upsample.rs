@@ -43,11 +43,11 @@ fn rect_of(v: &Value) -> Rect {
 fn cases(test: &str) -> Option<(FaceDetector, Vec<Case>)> {
     let model = paths::model_file_or_skip(test, DLIB_FRONTAL_MODEL)?;
     if paths::shared_data_dir().is_none() {
-        eprintln!("SKIP: {test}: shared data absent");
+        facecap_core::paths::skip_missing_data(&format!("{test}: shared data absent"));
         return None;
     }
     if !have_ffmpeg() {
-        eprintln!("SKIP: {test}: ffmpeg not installed");
+        facecap_core::paths::skip_missing_data(&format!("{test}: ffmpeg not installed"));
         return None;
     }
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../testdata/dlib_hog/upsample_fixture.json");

@@ -62,7 +62,7 @@ fn iris_centres_and_gaze_agree_with_mediapipe_on_shared_clips() {
         }
     }
     if tracked == 0 {
-        eprintln!("SKIP: gaze_mediapipe: no shared clip found");
+        facecap_core::paths::skip_missing_data("gaze_mediapipe: no shared clip found");
         return;
     }
     let mean = |x: &[f64]| x.iter().sum::<f64>() / x.len().max(1) as f64;

@@ -75,7 +75,7 @@ fn for_each_pair(test: &str, mut f: impl FnMut(&GrayImage, &GrayImage, &Pair)) -
             continue;
         };
         let Some(frames) = decode_gray(&path, clip.width, clip.height, fx.n_frames_decoded) else {
-            eprintln!("SKIP: {test}: ffmpeg could not decode {}", clip.clip);
+            facecap_core::paths::skip(&format!("{test}: ffmpeg could not decode {}", clip.clip));
             continue;
         };
         clips_run += 1;

@@ -59,7 +59,7 @@ fn tracker_matches_dlib_per_frame_on_shared_clips() {
         return;
     };
     let Ok(det) = FaceDetector::default_model() else {
-        eprintln!("SKIP: tracker_dlib: face detector model missing");
+        facecap_core::paths::skip_missing_data("tracker_dlib: face detector model missing");
         return;
     };
     let sp = ShapePredictor::from_file(&sp_path).unwrap().with_params(ErtParams {
@@ -85,7 +85,7 @@ fn tracker_matches_dlib_per_frame_on_shared_clips() {
                 continue;
             };
             let Some(frames) = decode_gray(&path, clip.width, clip.height) else {
-                eprintln!("SKIP: tracker_dlib: ffmpeg failed on {}", clip.clip);
+                facecap_core::paths::skip(&format!("tracker_dlib: ffmpeg failed on {}", clip.clip));
                 continue;
             };
             assert_eq!(frames.len(), clip.frames.len(), "{}", clip.clip);

@@ -90,6 +90,13 @@ pub fn build_expression_solve(
     let Some((cal, frames)) = calibration else {
         return Ok((solver, serde_json::Value::Null));
     };
+    if frames.is_empty() {
+        // No face anywhere: nothing to calibrate on; every frame is written as failed.
+        return Ok((
+            solver,
+            serde_json::json!({"mode": "skipped", "reason": "no tracked frame"}),
+        ));
+    }
     let c = cal
         .calibrate(&solver, &setup.rig, camera, frames)
         .map_err(Error::Calibration)?;
@@ -133,6 +140,51 @@ pub struct ExpressionResult {
     pub neutral_report: serde_json::Value,
     /// Per-frame solver failures (frame, message); those frames are written unsolved.
     pub failures: Vec<(u64, String)>,
+}
+
+/// Largest plausible mean reprojection error of a solve, as a fraction of the tracked
+/// face's size (the diagonal of the landmarks' bounding box). Measured solves are around
+/// 1-2 % of it; a solve off by a quarter of the face has fitted nothing.
+pub const MAX_REPROJECTION_FACE_FRACTION: f64 = 0.25;
+/// Largest plausible head distance from the camera, rig units.
+pub const MAX_HEAD_DISTANCE: f64 = 1e5;
+
+/// `Ok` when a solve is plausible, else why not: a reprojection error above
+/// [`MAX_REPROJECTION_FACE_FRACTION`] of the face, or a non-finite or absurdly distant
+/// pose ([`MAX_HEAD_DISTANCE`]). Such frames are written as failed, not as solved.
+///
+/// # Errors
+/// The reason, as text.
+pub fn implausible_solve(
+    l: &Landmarks68,
+    reprojection_px: f64,
+    pose: Option<&ModelToCamera>,
+) -> std::result::Result<(), String> {
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+    for p in &l.points {
+        x0 = x0.min(p.x);
+        y0 = y0.min(p.y);
+        x1 = x1.max(p.x);
+        y1 = y1.max(p.y);
+    }
+    let face = (x1 - x0).hypot(y1 - y0);
+    let limit = MAX_REPROJECTION_FACE_FRACTION * face;
+    if !(reprojection_px.is_finite() && reprojection_px <= limit) {
+        return Err(format!(
+            "implausible solve: mean reprojection error {reprojection_px:.1} px on a face of {face:.1} px \
+             (limit {limit:.1} px)"
+        ));
+    }
+    if let Some(p) = pose {
+        let t = p.tvec();
+        let d = t.norm();
+        if !(d.is_finite() && d <= MAX_HEAD_DISTANCE) {
+            return Err(format!(
+                "implausible solve: head at distance {d:e} rig units (limit {MAX_HEAD_DISTANCE:e})"
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Solves every frame and writes `weights.csv` (`frame,timestamp,success,confidence,`
@@ -509,8 +561,12 @@ impl<'a> ExpressionSink<'a> {
         };
         if let Some(l) = &face.landmarks {
             self.result.faces_found += 1;
-            match solver.solve_into(l, ws, state, &mut *solution) {
-                Ok(_) => {
+            let solved = solver
+                .solve_into(l, ws, state, &mut *solution)
+                .map_err(|e| e.to_string())
+                .and_then(|_| implausible_solve(l, solution.reprojection_error(l), solution.pose.as_ref()));
+            match solved {
+                Ok(()) => {
                     out.success = true;
                     out.weights.copy_from_slice(&solution.weights);
                     self.gaze.apply(face.iris.as_ref(), &mut out.weights);
@@ -525,7 +581,7 @@ impl<'a> ExpressionSink<'a> {
                     };
                 }
                 Err(e) => {
-                    self.result.failures.push((face.index, e.to_string()));
+                    self.result.failures.push((face.index, e));
                     state.reset();
                 }
             }

@@ -10,7 +10,9 @@
 //! camera ([`facecap_core::camera::head_rotation`]): `HeadYaw` = rotation about the
 //! vertical axis (`pose.csv`'s `pose_Ry`), `HeadPitch` = about the horizontal axis
 //! (`pose_Rx`), `HeadRoll` = about the viewing axis (`pose_Rz`); 0 on frames without a
-//! pose. The eye columns are 0 (no gaze estimate yet).
+//! pose. The eye columns are 0 (no gaze estimate yet). Only solved frames get a row:
+//! a frame without a face has no timecode in the file rather than a row of zeros that
+//! would read as a neutral face.
 //!
 //! Rig names map onto ARKit names case-insensitively, with `_L`/`_R` suffixes read as
 //! `Left`/`Right` (ICT style); where a rig splits an unsided ARKit shape into `_L`/`_R`

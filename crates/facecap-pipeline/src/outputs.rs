@@ -14,6 +14,10 @@
 //! * **OBJ names**: `obj/frame_NNNNNN.obj`, `NNNNNN` the 0-based frame index (six
 //!   digits); `model` space is the rig's frame, `camera` space the posed head in camera
 //!   axes (x right, y down, z forward, rig units).
+//! * **Failed frames** (no face, or a solve rejected as implausible) never look like a
+//!   neutral face: `livelink.csv` has no row for them, `animation.glb` no keyframe (it
+//!   is not written when no frame was solved), `obj/` no mesh; `weights.csv`,
+//!   `pose.csv` and `openface.csv` keep their row with `success = 0` and `nan` values.
 
 use std::path::Path;
 
@@ -128,17 +132,24 @@ pub fn write_solve_outputs(
         &out_dir.join("livelink.csv"),
         &result.names,
         o.fps,
-        frames.iter().map(|f| LiveLinkRow {
+        // Frames without a solve get no row (their timecodes are missing), so a failed
+        // frame never reads as a neutral face in an importer.
+        frames.iter().filter(|f| f.success).map(|f| LiveLinkRow {
             index: f.index,
             weights: &f.weights,
             pose: f.pose.as_ref(),
         }),
     )?;
     crate::openface::write_openface_csv(&out_dir.join("openface.csv"), rig, frames, o.rig_unit_mm)?;
-    if !frames.is_empty() {
+    if frames.iter().any(|f| f.success) {
         let mut anim = MorphAnimation::default();
         let mut track = NodeTrack::default();
         for (k, f) in frames.iter().enumerate() {
+            // Keys only on solved frames: glTF interpolates over failed ones instead of
+            // showing a neutral face (or a held one) as if it had been measured.
+            if !f.success {
+                continue;
+            }
             let t = keyframe_time(f.index, o.fps) as f32;
             if anim.times_s.last().is_some_and(|&l| t <= l) {
                 continue;
@@ -168,6 +179,10 @@ pub fn write_solve_outputs(
         let mut posed = Vec::new();
         let mut m = mesh.base.clone();
         for (k, f) in frames.iter().enumerate() {
+            if !f.success {
+                // no mesh for a frame without a solve (a neutral OBJ would look measured)
+                continue;
+            }
             mesh.pose_into(&f.weights, &mut posed)?;
             if let (ObjSpace::Camera, Some(p)) = (space, poses.as_ref().map(|p| p[k])) {
                 for v in posed.iter_mut() {

@@ -15,6 +15,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use facecap_core::csv::LandmarkRecord;
+use facecap_core::landmarks::Landmarks68;
 use facecap_core::video::{open_source, Frame, FrameSource, SourceOptions, VideoInfo};
 use facecap_landmarks::detect::FaceDetector;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
@@ -52,6 +53,17 @@ impl Queues {
 
 /// Largest number of sinks in one run (one bit each in [`Tracked::wanted`]).
 pub const MAX_SINKS: usize = 64;
+
+/// Consecutive decode errors after which a damaged source is given up (each error
+/// consumes one frame index, so a source that keeps failing cannot loop for ever).
+pub const MAX_CONSECUTIVE_DECODE_ERRORS: u32 = 10_000;
+
+/// What the decoding stage hands to tracking: a frame, or a frame that could not be
+/// decoded (salvage mode, [`RunControl::strict`] off).
+enum Decoded {
+    Frame(Frame),
+    Failed { index: u64, timestamp: f64, reason: String },
+}
 
 /// A tracked frame on its way to the sinks, with which sinks asked for its image.
 struct Tracked {
@@ -123,6 +135,10 @@ pub struct RunControl<'a> {
     pub interrupted: Option<&'a AtomicBool>,
     /// Called on the calling thread after each tracked frame (progress bars).
     pub on_frame: Option<&'a mut dyn FnMut()>,
+    /// Stop at the first frame that cannot be decoded (the run fails with its error).
+    /// Off (the default): every decodable frame is kept, each undecodable one reaches
+    /// the sinks as a frame without a face and is listed in [`RunReport::undecodable`].
+    pub strict: bool,
 }
 
 impl std::fmt::Debug for RunControl<'_> {
@@ -130,6 +146,7 @@ impl std::fmt::Debug for RunControl<'_> {
         f.debug_struct("RunControl")
             .field("interrupted", &self.interrupted)
             .field("on_frame", &self.on_frame.is_some())
+            .field("strict", &self.strict)
             .finish()
     }
 }
@@ -149,6 +166,63 @@ pub struct RunReport {
     pub track_seconds: f64,
     /// Busy seconds of each sink, by [`Sink::name`], in the order given.
     pub sink_seconds: Vec<(String, f64)>,
+    /// Frames whose landmarks were rejected as implausible ([`implausible_landmarks`]):
+    /// (frame index, reason). They reach the sinks as frames without a face.
+    pub rejected: Vec<(u64, String)>,
+    /// Frames that could not be decoded (salvage mode): (frame index, reason). They
+    /// reach the sinks as frames without a face.
+    pub undecodable: Vec<(u64, String)>,
+}
+
+/// How far outside the image a landmark may lie, as a fraction of the image's size
+/// (faces cut by the frame edge have points a little outside it).
+pub const MAX_OUTSIDE_IMAGE_FRACTION: f64 = 0.5;
+/// Largest plausible landmark coordinate when the image size is unknown (a replayed CSV), px.
+pub const MAX_LANDMARK_COORD: f64 = 1e6;
+/// Smallest plausible extent of the 68 landmarks along x and along y, px.
+pub const MIN_FACE_EXTENT_PX: f64 = 1.0;
+
+/// `Ok` when tracked landmarks are plausible, else why not: a non-finite point, a point
+/// more than [`MAX_OUTSIDE_IMAGE_FRACTION`] of the image outside it (`image` = width,
+/// height; without it, beyond [`MAX_LANDMARK_COORD`]), or all points within
+/// [`MIN_FACE_EXTENT_PX`] of each other along x or y (68 identical points).
+///
+/// # Errors
+/// The reason, as text.
+pub fn implausible_landmarks(l: &Landmarks68, image: Option<(u32, u32)>) -> std::result::Result<(), String> {
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+    for (i, p) in l.points.iter().enumerate() {
+        if !(p.x.is_finite() && p.y.is_finite()) {
+            return Err(format!("implausible landmarks: point {i} is not finite"));
+        }
+        let inside = match image {
+            Some((w, h)) => {
+                let (w, h) = (f64::from(w), f64::from(h));
+                let (mx, my) = (MAX_OUTSIDE_IMAGE_FRACTION * w, MAX_OUTSIDE_IMAGE_FRACTION * h);
+                (-mx..=w + mx).contains(&p.x) && (-my..=h + my).contains(&p.y)
+            }
+            None => p.x.abs() <= MAX_LANDMARK_COORD && p.y.abs() <= MAX_LANDMARK_COORD,
+        };
+        if !inside {
+            let size = image.map_or_else(String::new, |(w, h)| format!(" on a {w}x{h} image"));
+            return Err(format!(
+                "implausible landmarks: point {i} at ({:.1}, {:.1}){size}",
+                p.x, p.y
+            ));
+        }
+        x0 = x0.min(p.x);
+        y0 = y0.min(p.y);
+        x1 = x1.max(p.x);
+        y1 = y1.max(p.y);
+    }
+    if x1 - x0 < MIN_FACE_EXTENT_PX || y1 - y0 < MIN_FACE_EXTENT_PX {
+        return Err(format!(
+            "implausible landmarks: all 68 points within {:.2} x {:.2} px (degenerate)",
+            x1 - x0,
+            y1 - y0
+        ));
+    }
+    Ok(())
 }
 
 impl RunReport {
@@ -167,10 +241,22 @@ impl RunReport {
 /// # Errors
 /// As [`facecap_core::video::open_source`].
 pub fn open_video(path: &Path, decode_threads: u32) -> Result<Box<dyn FrameSource>> {
+    open_video_with(path, decode_threads, true)
+}
+
+/// [`open_video`] with ffmpeg's strictness: `strict` stops at the first decode error
+/// (pair it with [`RunControl::strict`]); otherwise ffmpeg drops damaged frames and goes
+/// on (the frames it delivers are intact, docs/video.md) and the source reports each
+/// dropped frame as a decode error of its own, so salvage mode marks exactly those.
+///
+/// # Errors
+/// As [`facecap_core::video::open_source`].
+pub fn open_video_with(path: &Path, decode_threads: u32, strict: bool) -> Result<Box<dyn FrameSource>> {
     Ok(open_source(
         path,
         &SourceOptions {
             threads: decode_threads,
+            strict,
             ..SourceOptions::default()
         },
     )?)
@@ -234,7 +320,7 @@ impl VideoTracker {
         let mut iris_ws = self.iris.new_workspace();
         let mut iris_frame = IrisFrame::default();
         let iris_estimator = &self.iris;
-        let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Frame>(queues.decoded);
+        let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Decoded>(queues.decoded);
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
         let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(queues.tracked);
         let tracker = &self.tracker;
@@ -243,17 +329,50 @@ impl VideoTracker {
         let mut tracked = TrackedFrame::default();
         let interrupted = control.interrupted;
         let on_frame = &mut control.on_frame;
+        let mut rejected = Vec::new();
+        let mut undecodable = Vec::new();
         let (decode_result, track_result, sink_result) = std::thread::scope(|scope| {
+            let strict = control.strict;
+            let fps = if info.fps.is_finite() && info.fps > 0.0 {
+                info.fps
+            } else {
+                30.0
+            };
             let decoder = scope.spawn(move || -> Result<f64> {
                 let mut busy = 0.0;
+                let (mut next_index, mut consecutive) = (0u64, 0u32);
                 loop {
                     let mut frame = recycle_rx.try_recv().unwrap_or_default();
                     let t = Instant::now();
-                    if !source.read_into(&mut frame)? {
-                        return Ok(busy);
-                    }
+                    let read = source.read_into(&mut frame);
                     busy += t.elapsed().as_secs_f64();
-                    if frame_tx.send(frame).is_err() {
+                    let msg = match read {
+                        Ok(false) => return Ok(busy),
+                        Ok(true) => {
+                            consecutive = 0;
+                            next_index = frame.index + 1;
+                            Decoded::Frame(frame)
+                        }
+                        Err(e) if strict => return Err(e.into()),
+                        Err(e) => {
+                            // Salvage: this frame is lost, the others are kept.
+                            let index = match &e {
+                                facecap_core::Error::Decode { frame: Some(k), .. } => (*k).max(next_index),
+                                _ => next_index,
+                            };
+                            next_index = index + 1;
+                            consecutive += 1;
+                            if consecutive > MAX_CONSECUTIVE_DECODE_ERRORS {
+                                return Ok(busy);
+                            }
+                            Decoded::Failed {
+                                index,
+                                timestamp: index as f64 / fps,
+                                reason: e.to_string(),
+                            }
+                        }
+                    };
+                    if frame_tx.send(msg).is_err() {
                         // the tracking stage stopped (error or interrupt)
                         return Ok(busy);
                     }
@@ -261,10 +380,38 @@ impl VideoTracker {
             });
             let sinks_ref = &mut *sinks;
             let worker = scope.spawn(move || -> Result<Vec<f64>> { feed(sinks_ref, track_rx) });
+            let rejected = &mut rejected;
+            let undecodable = &mut undecodable;
             let track_result = (|| -> Result<(f64, u64, u64)> {
                 let (mut busy, mut frames, mut faces) = (0.0, 0u64, 0u64);
                 let mut taken = vec![0usize; wants.len()];
-                for frame in frame_rx {
+                for decoded in frame_rx {
+                    let frame = match decoded {
+                        Decoded::Frame(f) => f,
+                        Decoded::Failed {
+                            index,
+                            timestamp,
+                            reason,
+                        } => {
+                            undecodable.push((index, reason));
+                            // the tracker starts again from a detection after the gap
+                            state = TrackerState::new();
+                            let face = TrackedFace {
+                                index,
+                                timestamp: timestamp.max(0.0),
+                                landmarks: None,
+                                confidence: 0.0,
+                                rect: None,
+                                gray: None,
+                                iris: None,
+                            };
+                            frames += 1;
+                            if track_tx.send(Tracked { face, wanted: 0 }).is_err() {
+                                break;
+                            }
+                            continue;
+                        }
+                    };
                     if interrupted.is_some_and(|f| f.load(Ordering::SeqCst)) {
                         return Err(Error::Interrupted { frame: frame.index });
                     }
@@ -279,6 +426,15 @@ impl VideoTracker {
                         }
                     }
                     let keep = wanted != 0;
+                    if tracked.success {
+                        let size = (frame.gray.width(), frame.gray.height());
+                        if let Err(why) = implausible_landmarks(&tracked.landmarks, Some(size)) {
+                            rejected.push((frame.index, why));
+                            tracked.success = false;
+                            // track from a fresh detection next frame, not from these points
+                            state = TrackerState::new();
+                        }
+                    }
                     let iris = if want_iris && tracked.success {
                         iris_estimator
                             .estimate_into(&frame.gray, &tracked.landmarks, &mut iris_ws, &mut iris_frame)
@@ -328,6 +484,8 @@ impl VideoTracker {
             decode_seconds,
             track_seconds,
             sink_seconds: names.into_iter().zip(sink_busy).collect(),
+            rejected,
+            undecodable,
         })
     }
 }
@@ -367,14 +525,29 @@ fn feed(sinks: &mut [&mut dyn Sink], queue: impl IntoIterator<Item = Tracked>) -
 /// The first sink failure.
 pub fn replay(records: &[LandmarkRecord], sinks: &mut [&mut dyn Sink]) -> Result<RunReport> {
     let names: Vec<String> = sinks.iter().map(|s| s.name().to_string()).collect();
-    let faces = records.iter().filter(|r| r.success && r.landmarks.is_some()).count() as u64;
+    // Implausible rows (e.g. a point at 1e300, 68 identical points) fail that frame only.
+    let mut rejected = Vec::new();
+    let landmarks: Vec<Option<Landmarks68>> = records
+        .iter()
+        .map(|r| {
+            let l = r.landmarks.as_ref().filter(|_| r.success)?;
+            match implausible_landmarks(l, None) {
+                Ok(()) => Some(l.clone()),
+                Err(why) => {
+                    rejected.push((r.frame, why));
+                    None
+                }
+            }
+        })
+        .collect();
+    let faces = landmarks.iter().filter(|l| l.is_some()).count() as u64;
     let busy = feed(
         sinks,
-        records.iter().map(|r| Tracked {
+        records.iter().zip(landmarks).map(|(r, landmarks)| Tracked {
             face: TrackedFace {
                 index: r.frame,
                 timestamp: r.timestamp.max(0.0),
-                landmarks: r.landmarks.clone().filter(|_| r.success),
+                landmarks,
                 confidence: r.confidence,
                 rect: None,
                 gray: None,
@@ -390,5 +563,7 @@ pub fn replay(records: &[LandmarkRecord], sinks: &mut [&mut dyn Sink]) -> Result
         decode_seconds: 0.0,
         track_seconds: 0.0,
         sink_seconds: names.into_iter().zip(busy).collect(),
+        rejected,
+        undecodable: Vec::new(),
     })
 }

@@ -89,6 +89,7 @@ fn every_frame_reaches_every_sink_in_order_with_the_images_asked_for() {
             &mut RunControl {
                 interrupted: None,
                 on_frame: Some(&mut count),
+                strict: false,
             },
         )
         .unwrap();
@@ -123,6 +124,7 @@ fn an_interrupt_stops_the_run_before_the_next_frame() {
             &mut RunControl {
                 interrupted: Some(&stop),
                 on_frame: None,
+                strict: false,
             },
         )
         .unwrap_err();

@@ -498,6 +498,18 @@ impl TensorModel {
                 format!("bad dimensions V={nv} I={ni} E={ne} r_id={r_id} r_exp={r_exp}"),
             ));
         }
+        // Every name takes at least its 4-byte length: check the counts against the bytes
+        // present before reserving anything (a count of 0xFFFFFFFF must not reserve 100 GB).
+        let remaining = r.b.len() - r.pos;
+        if (ni + ne).checked_mul(4).map_or(true, |b| b > remaining) {
+            return Err(fmt_err(
+                r.pos,
+                format!(
+                    "{} names (I={ni} + E={ne}) cannot fit in the {remaining} bytes left",
+                    ni + ne
+                ),
+            ));
+        }
         let mut names = Vec::with_capacity(ni + ne);
         for k in 0..ni + ne {
             let len = r.u32("name length")? as usize;

@@ -174,6 +174,17 @@ fn model_file_round_trip_and_rejections() {
     let off = bytes.len() - 8; // last core value
     bad[off..].copy_from_slice(&f64::NAN.to_le_bytes());
     assert!(TensorModel::from_bytes(&bad).is_err());
+    // Counts read from the header are checked against the bytes present before anything
+    // is reserved: I = 0xFFFFFFFF (header offset 20) or E = 0xFFFFFFFF (offset 24) once
+    // reserved 100 GB and aborted the process; now they are format errors.
+    for off in [20, 24] {
+        let mut huge = bytes.clone();
+        huge[off..off + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        match TensorModel::from_bytes(&huge) {
+            Err(Error::Format { reason, .. }) => assert!(reason.contains("cannot fit"), "{reason}"),
+            other => panic!("count 0xFFFFFFFF at offset {off}: {other:?}"),
+        }
+    }
     // Through a file.
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("m.fctensor");

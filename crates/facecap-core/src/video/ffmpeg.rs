@@ -114,6 +114,35 @@ pub fn locate_ffprobe(ffmpeg: &Path) -> Option<PathBuf> {
         .or_else(|| find_in_path("ffprobe"))
 }
 
+/// Protocols ffmpeg and ffprobe may open (`-protocol_whitelist`): local files and pipes.
+pub const PROTOCOL_WHITELIST: &str = "file,pipe";
+/// Demuxers ffmpeg and ffprobe may use on an input (`-format_whitelist`): video
+/// containers and raw streams, not playlists or concatenation scripts (an HLS playlist or
+/// ffconcat file saved as `.mp4` would open other files).
+pub const FORMAT_WHITELIST: &str = "mov,mp4,m4a,3gp,3g2,mj2,matroska,webm,avi,mpegts,mpegtsraw,mpeg,mpegvideo,\
+flv,ogg,asf,mxf,dv,gif,h264,hevc,m4v,rawvideo,yuv4mpegpipe,ivf,nut,obu,image2,png_pipe,jpeg_pipe,mjpeg";
+
+/// A local path as an ffmpeg `file:` URL: an absolute path behind `file:`, so a name such
+/// as `concat:a.mp4|b.mp4`, `http://...` or `-i` is a file name and never a protocol or an
+/// option.
+pub fn file_url(path: &Path) -> std::ffi::OsString {
+    let abs = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut url = std::ffi::OsString::from("file:");
+    url.push(abs.as_os_str());
+    url
+}
+
+/// The input options every ffmpeg/ffprobe call on a user's file gets (see
+/// [`PROTOCOL_WHITELIST`], [`FORMAT_WHITELIST`]).
+pub fn safe_input_args() -> [&'static str; 4] {
+    [
+        "-protocol_whitelist",
+        PROTOCOL_WHITELIST,
+        "-format_whitelist",
+        FORMAT_WHITELIST,
+    ]
+}
+
 /// The container's frame count of the first video stream (`nb_frames`), via ffprobe.
 pub fn probe_frame_count(ffprobe: &Path, file: &Path) -> Option<u64> {
     frame_count_of(spawn_frame_count_probe(ffprobe, file)?)
@@ -132,7 +161,8 @@ fn spawn_frame_count_probe(ffprobe: &Path, file: &Path) -> Option<std::process::
             "stream=nb_frames",
         ])
         .args(["-of", "default=noprint_wrappers=1:nokey=1"])
-        .arg(file)
+        .args(safe_input_args())
+        .arg(file_url(file))
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
@@ -172,6 +202,8 @@ pub struct ShowinfoFrame {
     pub width: u32,
     /// Frame height.
     pub height: u32,
+    /// Whether it is a keyframe (`iskey:1`; `false` when the line does not say).
+    pub key: bool,
 }
 
 /// What the stderr reader thread reports.
@@ -245,6 +277,7 @@ pub fn parse_showinfo_frame(line: &str) -> Option<ShowinfoFrame> {
         pts,
         width: w.parse().ok()?,
         height: h.parse().ok()?,
+        key: field_after(body, " iskey:").is_some_and(|t| leading_token(t) == "1"),
     })
 }
 
@@ -375,8 +408,27 @@ pub struct FfmpegSource {
     strict: bool,
     /// First error-level line ffmpeg logged (strict mode stops at the next frame).
     error_line: Option<String>,
+    /// Last error-level line since the last delivered frame (lenient mode).
+    error_since_frame: Option<String>,
+    /// Presentation time of the last delivered frame, seconds.
+    last_time: Option<f64>,
+    /// Frames ffmpeg dropped (lenient mode) that are still to be reported as errors.
+    missing: u64,
+    /// Why they were dropped (ffmpeg's error line).
+    missing_reason: String,
+    /// Dropped frames so far: ffmpeg's frame numbers plus this are ours.
+    index_offset: u64,
+    /// The error being returned concerns one dropped frame only: decoding goes on.
+    skippable: bool,
+    /// Lenient mode: ffmpeg logged a decode error for the frame being read (concealed);
+    /// the error line.
+    damaged: Option<String>,
     done: bool,
 }
+
+/// Largest run of dropped frames reported one by one (a timestamp jump beyond it is a
+/// discontinuity, not damage).
+const MAX_DROPPED_RUN: u64 = 10_000;
 
 impl FfmpegSource {
     /// Starts ffmpeg on `path` and waits for the first frame's header.
@@ -397,8 +449,9 @@ impl FfmpegSource {
         if opts.threads > 0 {
             cmd.args(["-threads", &opts.threads.to_string()]);
         }
-        cmd.args(["-copyts", "-i"])
-            .arg(path)
+        cmd.args(safe_input_args())
+            .args(["-copyts", "-i"])
+            .arg(file_url(path))
             .args([
                 "-map",
                 "0:V:0",
@@ -481,6 +534,13 @@ impl FfmpegSource {
             tail: VecDeque::with_capacity(LOG_TAIL_LINES + 1),
             strict: opts.strict,
             error_line: None,
+            error_since_frame: None,
+            last_time: None,
+            missing: 0,
+            missing_reason: String::new(),
+            index_offset: 0,
+            skippable: false,
+            damaged: None,
             done: false,
         };
         // The frame count comes from ffprobe, started now so it runs while ffmpeg starts.
@@ -552,6 +612,7 @@ impl FfmpegSource {
         if self.error_line.is_none() {
             self.error_line = Some(line.clone());
         }
+        self.error_since_frame = Some(line.clone());
         self.push_tail(line);
     }
 
@@ -692,6 +753,20 @@ impl FfmpegSource {
     }
 
     fn read_frame(&mut self, frame: &mut Frame) -> Result<bool> {
+        if self.missing > 0 {
+            // Lenient mode: one frame ffmpeg dropped as undecodable, reported on its own.
+            self.missing -= 1;
+            let k = self.next_index;
+            self.next_index += 1;
+            self.skippable = true;
+            return Err(self.decode_err(
+                Some(k),
+                format!(
+                    "ffmpeg could not decode this frame and dropped it ({})",
+                    self.missing_reason
+                ),
+            ));
+        }
         let next = self.next_report()?;
         let k = self.next_index;
         if let Some(e) = self.strict_stop(k) {
@@ -700,7 +775,34 @@ impl FfmpegSource {
         let Some(rep) = next else {
             return self.finish();
         };
-        if rep.n != k {
+        let time = |rep: &ShowinfoFrame, tb: Option<(i64, i64)>| match (rep.pts, tb) {
+            (Some(p), Some((num, den))) if den != 0 => Some(p as f64 * num as f64 / den as f64),
+            _ => None,
+        };
+        if !self.strict {
+            // Frames ffmpeg dropped after a decode error show as a gap in the timestamps.
+            let err = self.error_since_frame.take();
+            if let (Some(err), Some(last), Some(t)) = (&err, self.last_time, time(&rep, self.time_base)) {
+                let gap = ((t - last) * self.info.fps).round() - 1.0;
+                if gap >= 1.0 && gap <= MAX_DROPPED_RUN as f64 {
+                    let gap = gap as u64;
+                    self.index_offset += gap;
+                    self.missing = gap;
+                    self.missing_reason = err.trim().to_string();
+                    // the frame itself follows the error: it is checked again below
+                    self.error_since_frame = Some(err.clone());
+                    self.pending = Some(rep);
+                    return self.read_frame(frame);
+                }
+            }
+            // A frame whose decoding logged an error is concealed (partly invented by
+            // ffmpeg): reported as damaged (its bytes are still read to keep the pipe in
+            // step). Frames predicted from it until the next keyframe may carry some of
+            // the concealment; they are kept (marking them all would throw away up to a
+            // whole group of pictures over a few damaged bytes; `strict` refuses them).
+            self.damaged = err.map(|e| e.trim().to_string());
+        }
+        if rep.n + self.index_offset != k {
             return Err(self.decode_err(
                 Some(k),
                 format!("ffmpeg reported frame {} where {k} was expected", rep.n),
@@ -747,11 +849,17 @@ impl FfmpegSource {
             apply_lut(&mut frame.gray, lut);
         }
         frame.index = k;
-        frame.timestamp_s = match (rep.pts, self.time_base) {
-            (Some(p), Some((num, den))) if den != 0 => p as f64 * num as f64 / den as f64,
-            _ => k as f64 / self.info.fps,
-        };
+        frame.timestamp_s = time(&rep, self.time_base).unwrap_or(k as f64 / self.info.fps);
+        self.last_time = Some(frame.timestamp_s);
+        self.error_since_frame = None;
         self.next_index += 1;
+        if let Some(e) = self.damaged.take() {
+            self.skippable = true;
+            return Err(self.decode_err(
+                Some(k),
+                format!("damaged: ffmpeg concealed a decode error in this frame ({e})"),
+            ));
+        }
         Ok(true)
     }
 }
@@ -770,7 +878,7 @@ impl FrameSource for FfmpegSource {
             return Ok(false);
         }
         let r = self.read_frame(frame);
-        if r.is_err() {
+        if r.is_err() && !std::mem::take(&mut self.skippable) {
             self.done = true;
         }
         r
@@ -806,7 +914,8 @@ mod tests {
                 n: 1,
                 pts: Some(3000),
                 width: 512,
-                height: 480
+                height: 480,
+                key: false
             }
         );
         let f = parse_showinfo_frame("n:1000 pts:1038000 pts_time:11.5333 pos: 1 fmt:yuv420p sar:0/1 s:480x480 i:P")

@@ -1,8 +1,9 @@
 //! Folders of still images (and single images) as frame sources.
 //!
 //! The folder's files with an image extension ([`crate::image_io::IMAGE_EXTENSIONS`],
-//! case-insensitive) are the frames, sorted by file name in byte order (so name them
-//! with zero-padded numbers: `frame_0001.png`); other files and sub-folders are ignored.
+//! case-insensitive) are the frames, sorted by file name in natural order (runs of digits
+//! compare as numbers, so `frame_2.png` comes before `frame_10.png`, and zero-padded
+//! names keep their byte order); other files and sub-folders are ignored.
 //! Timestamps are `index / folder_fps`. All images must have the size of the first.
 //! Grey and RGB conversion follow [`crate::image_io`]; grey images are always full range,
 //! so [`super::Luma`] does not apply.
@@ -49,7 +50,13 @@ impl ImageFolderSource {
                 ),
             });
         }
-        files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+        files.sort_by(|a, b| {
+            natural_cmp(
+                &a.file_name().unwrap_or_default().to_string_lossy(),
+                &b.file_name().unwrap_or_default().to_string_lossy(),
+            )
+            .then_with(|| a.cmp(b))
+        });
         Self::from_files(dir, files, opts, SourceKind::ImageFolder)
     }
 
@@ -60,9 +67,25 @@ impl ImageFolderSource {
     }
 
     fn from_files(path: &Path, files: Vec<PathBuf>, opts: &SourceOptions, kind: SourceKind) -> Result<Self> {
-        let (width, height) = match files.first() {
-            Some(f) => image_io::image_dimensions(f)?,
-            None => (0, 0),
+        // The sequence's size is the first readable image's: a damaged first file is a
+        // frame that fails on its own, not the end of the sequence.
+        let mut first_err = None;
+        let mut size = None;
+        for f in &files {
+            match image_io::image_dimensions(f) {
+                Ok(d) => {
+                    size = Some(d);
+                    break;
+                }
+                Err(e) => {
+                    first_err.get_or_insert(e);
+                }
+            }
+        }
+        let (width, height) = match (size, first_err) {
+            (Some(d), _) => d,
+            (None, Some(e)) => return Err(e),
+            (None, None) => (0, 0),
         };
         let n = files.len() as u64;
         Ok(ImageFolderSource {
@@ -127,5 +150,64 @@ impl FrameSource for ImageFolderSource {
         frame.index = index;
         frame.timestamp_s = index as f64 / self.info.fps;
         Ok(true)
+    }
+}
+
+/// Natural order of file names: runs of ASCII digits compare by value (then by length,
+/// so `01` and `1` stay apart), everything else by character.
+pub fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
+    use std::cmp::Ordering;
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        if a[i].is_ascii_digit() && b[j].is_ascii_digit() {
+            let (si, sj) = (i, j);
+            while i < a.len() && a[i].is_ascii_digit() {
+                i += 1;
+            }
+            while j < b.len() && b[j].is_ascii_digit() {
+                j += 1;
+            }
+            let (da, db) = (&a[si..i], &b[sj..j]);
+            let ta = &da[da.iter().take_while(|&&c| c == b'0').count()..];
+            let tb = &db[db.iter().take_while(|&&c| c == b'0').count()..];
+            let o = ta
+                .len()
+                .cmp(&tb.len())
+                .then_with(|| ta.cmp(tb))
+                .then_with(|| da.len().cmp(&db.len()));
+            if o != Ordering::Equal {
+                return o;
+            }
+        } else {
+            if a[i] != b[j] {
+                return a[i].cmp(&b[j]);
+            }
+            i += 1;
+            j += 1;
+        }
+    }
+    (a.len() - i).cmp(&(b.len() - j))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::natural_cmp;
+
+    #[test]
+    fn natural_order_of_frame_names() {
+        let mut v: Vec<String> = (1..=30).rev().map(|i| format!("frame_{i}.png")).collect();
+        v.sort_by(|a, b| natural_cmp(a, b));
+        let want: Vec<String> = (1..=30).map(|i| format!("frame_{i}.png")).collect();
+        assert_eq!(v, want);
+        // Zero-padded names keep their byte order.
+        let mut p: Vec<String> = (0..120).rev().map(|i| format!("f{i:04}.png")).collect();
+        let mut bytes = p.clone();
+        bytes.sort();
+        p.sort_by(|a, b| natural_cmp(a, b));
+        assert_eq!(p, bytes);
+        assert_eq!(natural_cmp("a01", "a1"), std::cmp::Ordering::Greater);
+        assert_eq!(natural_cmp("a", "a1"), std::cmp::Ordering::Less);
+        assert_eq!(natural_cmp("b", "a10"), std::cmp::Ordering::Greater);
     }
 }

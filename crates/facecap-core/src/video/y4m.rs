@@ -179,6 +179,8 @@ pub struct Y4mSource {
     next_index: u64,
     line: Vec<u8>,
     chroma: Vec<u8>,
+    /// Bytes after the stream header (0 when unknown, e.g. a pipe).
+    body_len: u64,
     lut: Option<[u8; 256]>,
     rgb: bool,
     conv: YuvToRgb,
@@ -248,7 +250,8 @@ impl Y4mSource {
         Ok(Y4mSource {
             path: path.to_path_buf(),
             info,
-            chroma: vec![0; 2 * header.chroma_len()],
+            chroma: Vec::new(),
+            body_len: body,
             header,
             reader,
             next_index: 0,
@@ -288,6 +291,17 @@ impl Y4mSource {
             return Err(self.err(format!("expected a FRAME header, found {shown:?}")));
         }
         let (w, h) = (self.header.width, self.header.height);
+        // The frame size comes from the header: check it against the bytes present before
+        // any frame buffer is allocated (a 32768x32768 header on a short file would
+        // otherwise reserve 1.5 GB for nothing). Buffers are allocated on the first frame.
+        if self.next_index == 0 && self.body_len > 0 && self.header.frame_len() as u64 > self.body_len {
+            return Err(self.err(format!(
+                "file ends inside the frame data ({} bytes per frame for {w}x{h}, {} bytes after the header; truncated file)",
+                self.header.frame_len(),
+                self.body_len
+            )));
+        }
+        self.chroma.resize(2 * self.header.chroma_len(), 0);
         ensure_gray(&mut frame.gray, w, h);
         let truncated = |s: &Self, e: std::io::Error| {
             if e.kind() == std::io::ErrorKind::UnexpectedEof {

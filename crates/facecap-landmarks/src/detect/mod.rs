@@ -296,6 +296,8 @@ impl FaceDetector {
     /// # Errors
     /// I/O errors and [`Error::Model`] for malformed files.
     pub fn from_file(path: &Path) -> Result<Self> {
+        // A file scripts/setup.sh installed (or a copy of it) must match its checksum.
+        facecap_core::checksum::verify_model_file(path, None)?;
         Self::new(HogModel::from_file(path)?, DetectorParams::default())
     }
 

@@ -75,7 +75,10 @@ use image::GrayImage;
 use nalgebra::Point2;
 
 pub use cache::CacheStatus;
-pub use model::{ErtModel, RegressionTree, SplitFeature, DLIB_SHAPE_PREDICTOR_VERSION};
+pub use model::{
+    ErtModel, RegressionTree, SplitFeature, DLIB_SHAPE_PREDICTOR_VERSION, MAX_DELTA_ABS, MAX_LEAF_ABS,
+    MEAN_SHAPE_RANGE, MIN_MEAN_SHAPE_SPREAD,
+};
 
 use crate::error::{Error, Result};
 
@@ -269,9 +272,12 @@ impl ShapePredictor {
     /// passes its checksum and structural checks (otherwise the model is parsed again
     /// and the cache rewritten). The predictor is the same either way.
     ///
+    /// A model file `scripts/setup.sh` installed (or a copy of it: same name and size)
+    /// must match the sha256 setup recorded ([`facecap_core::checksum`]).
+    ///
     /// # Errors
-    /// As [`ShapePredictor::from_file`]. A cache that cannot be written is not an
-    /// error: [`CacheStatus::NotWritten`] says why.
+    /// As [`ShapePredictor::from_file`]; also a checksum mismatch. A cache that cannot be
+    /// written is not an error: [`CacheStatus::NotWritten`] says why.
     pub fn from_file_cached(path: &Path) -> Result<(Self, CacheStatus)> {
         let stamp = cache::SourceStamp::of(path);
         let cache_file = cache::cache_path(path);
@@ -282,6 +288,9 @@ impl ShapePredictor {
                 }
             }
         }
+        // The cache is written only for a model that passed these checks, so a cache hit
+        // (same size and modification time) needs no second sha256 of the model file.
+        facecap_core::checksum::verify_model_file(path, None)?;
         let sp = Self::from_file(path)?;
         let status = match stamp {
             None => CacheStatus::NotWritten("the model file's size and time cannot be read".into()),

@@ -7,6 +7,14 @@ use crate::error::{Error, Result};
 
 /// The only `shape_predictor` serialisation version dlib has written so far.
 pub const DLIB_SHAPE_PREDICTOR_VERSION: i64 = 1;
+/// Allowed range of mean-shape coordinates, face-box units (the box is [0, 1]^2).
+pub const MEAN_SHAPE_RANGE: (f32, f32) = (-1.0, 2.0);
+/// Smallest extent of a mean shape with more than one point along x and along y.
+pub const MIN_MEAN_SHAPE_SPREAD: f32 = 1e-3;
+/// Largest absolute leaf value (one tree's shape update), face-box units.
+pub const MAX_LEAF_ABS: f32 = 1.0;
+/// Largest absolute feature-pixel offset from its anchor, face-box units.
+pub const MAX_DELTA_ABS: f32 = 2.0;
 
 /// One split node: go left when `f[idx1] - f[idx2] > thresh`, where `f` are the
 /// cascade's feature pixel intensities.
@@ -216,6 +224,63 @@ impl ErtModel {
                     return Err(model_err(format!(
                         "cascade {ci} tree {ti} leaf {l}: {} values, expected {dim}",
                         tree.leaf_values[l].len()
+                    )));
+                }
+            }
+        }
+        self.check_plausible()
+    }
+
+    /// Plausibility of the numbers (any model, known or not): dlib's mean shape and leaf
+    /// values are in face-box units (the detection box is the unit square), so a mean
+    /// shape outside [`MEAN_SHAPE_RANGE`], a degenerate mean shape, a leaf value above
+    /// [`MAX_LEAF_ABS`] or a feature offset above [`MAX_DELTA_ABS`] means a damaged
+    /// file (one flipped exponent bit makes a value thousands of times too large),
+    /// not a model. dlib's models stay well inside these bounds (68 points: mean shape in
+    /// [0.029, 1.070], leaves <= 0.061, offsets <= 0.187; 5 points: offsets <= 0.501;
+    /// `tests/ert_plausibility.rs`).
+    fn check_plausible(&self) -> Result<()> {
+        let (lo, hi) = MEAN_SHAPE_RANGE;
+        if let Some(i) = self.initial_shape.iter().position(|&v| !(lo..=hi).contains(&v)) {
+            return Err(model_err(format!(
+                "implausible model: mean shape value {i} = {} outside [{lo}, {hi}] face-box units (damaged file?)",
+                self.initial_shape[i]
+            )));
+        }
+        let spread = |k: usize| {
+            let v = self.initial_shape.iter().skip(k).step_by(2);
+            let (mn, mx) = v.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            mx - mn
+        };
+        if self.num_parts() > 1 && (spread(0) < MIN_MEAN_SHAPE_SPREAD || spread(1) < MIN_MEAN_SHAPE_SPREAD) {
+            return Err(model_err(format!(
+                "implausible model: mean shape spans {} x {} face-box units (degenerate)",
+                spread(0),
+                spread(1)
+            )));
+        }
+        for (ci, (trees, deltas)) in self.forests.iter().zip(&self.deltas).enumerate() {
+            if let Some(d) = deltas
+                .iter()
+                .position(|d| d[0].abs() > MAX_DELTA_ABS || d[1].abs() > MAX_DELTA_ABS)
+            {
+                return Err(model_err(format!(
+                    "implausible model: cascade {ci} feature offset {d} = {:?} above {MAX_DELTA_ABS} face-box units",
+                    deltas[d]
+                )));
+            }
+            for (ti, tree) in trees.iter().enumerate() {
+                for (li, leaf) in tree.leaf_values.iter().enumerate() {
+                    if let Some(v) = leaf.iter().find(|v| !v.is_finite() || v.abs() > MAX_LEAF_ABS) {
+                        return Err(model_err(format!(
+                            "implausible model: cascade {ci} tree {ti} leaf {li} value {v} above {MAX_LEAF_ABS} face-box units"
+                        )));
+                    }
+                }
+                if let Some(s) = tree.splits.iter().find(|s| !s.thresh.is_finite()) {
+                    return Err(model_err(format!(
+                        "cascade {ci} tree {ti}: split threshold {} is not finite",
+                        s.thresh
                     )));
                 }
             }

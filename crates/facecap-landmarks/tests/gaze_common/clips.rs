@@ -82,7 +82,7 @@ pub fn read_fixture() -> BTreeMap<String, Vec<MpRow>> {
 pub fn tracker(test: &str) -> Option<LandmarkTracker<FaceDetector, ShapePredictor>> {
     let sp_path = facecap_core::paths::model_file_or_skip(test, facecap_core::paths::DLIB_68_MODEL)?;
     let Ok(det) = FaceDetector::default_model() else {
-        eprintln!("SKIP: {test}: face detector model missing");
+        facecap_core::paths::skip_missing_data(&format!("{test}: face detector model missing"));
         return None;
     };
     let sp = ShapePredictor::from_file_cached(&sp_path)

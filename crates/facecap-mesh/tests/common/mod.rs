@@ -46,7 +46,7 @@ pub fn clip_frames(test: &str, clip: &str, n: u64) -> Option<Vec<image::RgbImage
     let out = match out {
         Ok(o) if o.status.success() => o.stdout,
         _ => {
-            eprintln!("SKIP: {test}: ffmpeg not runnable");
+            facecap_core::paths::skip(&format!("{test}: ffmpeg not runnable"));
             return None;
         }
     };
@@ -76,7 +76,7 @@ pub fn clip_frame(test: &str, clip: &str, index: u64) -> Option<image::RgbImage>
     let out = match out {
         Ok(o) if o.status.success() => o.stdout,
         _ => {
-            eprintln!("SKIP: {test}: ffmpeg not runnable");
+            facecap_core::paths::skip(&format!("{test}: ffmpeg not runnable"));
             return None;
         }
     };
