@@ -51,7 +51,7 @@ skiplog="$(mktemp)"
 trap 'rm -f "$skiplog"' EXIT
 export FACECAP_SKIP_LOG="$skiplog"
 set +e
-cargo test --workspace 2>&1
+cargo test --workspace --no-fail-fast 2>&1
 status="$?"
 set -e
 # `facecap batch` as a Slurm job array on a one-node cluster started on localhost
