@@ -46,7 +46,7 @@ pub const LANDMARK_COLOUR: [u8; 3] = [60, 230, 90];
 /// |---|---|---|---|
 /// | `max_height` | 360 | frames taller than this are scaled down to it (pixels) | 64..=2160 |
 /// | `decode_threads` | 1 | ffmpeg decoder threads for the second pass | any (0 = ffmpeg's choice) |
-/// | `encoder` | [`EncoderParams::default`] (`fps` is set from the video) | x264 settings | |
+/// | `encoder` | [`EncoderParams::default`] with preset `ultrafast` (`fps` is set from the video) | x264 settings | |
 #[derive(Debug, Clone, PartialEq)]
 pub struct PreviewParams {
     /// Largest frame height in the preview.
@@ -62,7 +62,12 @@ impl Default for PreviewParams {
         PreviewParams {
             max_height: 360,
             decode_threads: 1,
-            encoder: EncoderParams::default(),
+            // the preview is for looking at: x264's cheapest preset (no trellis, no
+            // B-frames) costs a third of `veryfast` at a larger file
+            encoder: EncoderParams {
+                preset: "ultrafast".into(),
+                ..EncoderParams::default()
+            },
         }
     }
 }
