@@ -45,12 +45,15 @@ pub const LANDMARK_COLOUR: [u8; 3] = [60, 230, 90];
 /// | name | default | meaning | range |
 /// |---|---|---|---|
 /// | `max_height` | 360 | frames taller than this are scaled down to it (pixels) | 64..=2160 |
+/// | `max_fps` | 15 | frame-rate cap: a faster video shows every k-th frame, k = ceil(fps / max_fps), at fps / k | 1..=240 |
 /// | `decode_threads` | 1 | ffmpeg decoder threads for the second pass | any (0 = ffmpeg's choice) |
 /// | `encoder` | [`EncoderParams::default`] with preset `ultrafast` (`fps` is set from the video) | x264 settings | |
 #[derive(Debug, Clone, PartialEq)]
 pub struct PreviewParams {
     /// Largest frame height in the preview.
     pub max_height: u32,
+    /// Largest frame rate of the preview (rendering and encoding dominate its cost).
+    pub max_fps: f64,
     /// ffmpeg decoder threads.
     pub decode_threads: u32,
     /// Encoder settings (its `fps` is replaced by the video's when that is known).
@@ -61,6 +64,7 @@ impl Default for PreviewParams {
     fn default() -> Self {
         PreviewParams {
             max_height: 360,
+            max_fps: 15.0,
             decode_threads: 1,
             // the preview is for looking at: x264's cheapest preset (no trellis, no
             // B-frames) costs a third of `veryfast` at a larger file
@@ -283,11 +287,17 @@ pub fn write_preview(
     )?;
     let info = source.info().clone();
     let layout = PreviewLayout::new(info.width, info.height, params.max_height);
-    let fps = if info.fps.is_finite() && info.fps > 0.0 {
+    if !(params.max_fps.is_finite() && (1.0..=240.0).contains(&params.max_fps)) {
+        return Err(Error::invalid("preview max_fps", params.max_fps, "1..=240"));
+    }
+    let video_fps = if info.fps.is_finite() && info.fps > 0.0 {
         info.fps
     } else {
         params.encoder.fps
     };
+    // every `stride`-th frame, at the rate that keeps the clip's duration
+    let stride = ((video_fps / params.max_fps).ceil() as usize).clamp(1, 240);
+    let fps = video_fps / stride as f64;
     let mut encoder = FfmpegEncoder::create(
         out,
         layout.size.0,
@@ -361,6 +371,7 @@ pub fn write_preview(
                 let rendered: Vec<Result<RgbImage>> = decoded
                     .par_iter()
                     .enumerate()
+                    .filter(|(k, _)| (next + k) % stride == 0)
                     .map_init(RenderWorkspace::default, |ws, (k, fr)| {
                         let rgb = fr.rgb.as_ref().ok_or_else(|| {
                             Error::invalid("preview source", "no colour frames", "a source that decodes RGB")
