@@ -397,7 +397,9 @@ fn preview_window_under_xvfb() {
             img.pixels()
                 .filter(|p| p.0[1] > 200 && p.0[0] < 90 && p.0[2] < 110)
                 .count(),
-            img.pixels().filter(|p| p.0 == [245, 245, 245]).count(),
+            img.pixels()
+                .filter(|p| p.0 == facecap_pipeline::render::BACKGROUND)
+                .count(),
             img.pixels().filter(|p| p.0 == [255, 255, 255]).count(),
         );
         if counts.0 > 50 && counts.1 > 1000 {

@@ -312,6 +312,7 @@ pub fn write_preview(
     let batch = (2 * rayon::current_num_threads()).max(4);
     let (mut decode_s, mut render_s) = (0.0, 0.0);
     let mut next = 0usize;
+    let (mut next_index, mut consecutive) = (0u64, 0u32);
     let mut kept = Vec::new();
     // Frames go to ffmpeg from their own thread, so encoding overlaps decoding and
     // rendering the next batch.
@@ -343,8 +344,31 @@ pub fn write_preview(
                 let mut decoded = Vec::with_capacity(batch);
                 for _ in 0..batch {
                     let mut fr = Frame::default();
-                    if !source.read_into(&mut fr)? {
-                        break;
+                    match source.read_into(&mut fr) {
+                        Ok(false) => break,
+                        Ok(true) => {
+                            next_index = fr.index + 1;
+                            consecutive = 0;
+                        }
+                        // A frame the tracking pass could not decode either (salvage, as
+                        // in the tracker): shown as a dark frame marked lost.
+                        Err(e) => {
+                            let index = match &e {
+                                facecap_core::Error::Decode { frame: Some(k), .. } => (*k).max(next_index),
+                                _ => next_index,
+                            };
+                            next_index = index + 1;
+                            consecutive += 1;
+                            if consecutive > crate::tracker::MAX_CONSECUTIVE_DECODE_ERRORS {
+                                break;
+                            }
+                            fr.index = index;
+                            fr.rgb = Some(RgbImage::from_pixel(
+                                info.width.max(1),
+                                info.height.max(1),
+                                Rgb([40, 40, 40]),
+                            ));
+                        }
                     }
                     decoded.push(fr);
                 }
