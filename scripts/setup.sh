@@ -251,7 +251,7 @@ chmod +x "$CACHE/bin/ffmpeg"
 # (removed aliases), so a numpy 1.23.5 wheel is unpacked into $CACHE/blender-py for PYTHONPATH.
 BLENDER_NUMPY_WHEEL="numpy-1.23.5-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"
 BLENDER_NUMPY_SHA=58f545efd1108e647604a1b5aa809591ccd2540f468a880bedb97247e72db387
-if [ -f "$CACHE/blender-py/numpy/version.py" ] && grep -q "1.23.5" "$CACHE/blender-py/numpy/version.py"; then
+if [ -d "$CACHE/blender-py/numpy-1.23.5.dist-info" ] && [ -d "$CACHE/blender-py/numpy" ]; then
   log "numpy 1.23.5 for Blender present"
 else
   d="$DL/blender-numpy"

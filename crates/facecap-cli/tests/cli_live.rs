@@ -343,7 +343,7 @@ fn preview_window_under_xvfb() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let Some((clip, ff)) = synth_clip(dir.path(), 180, "preview_window_under_xvfb") else {
+    let Some((clip, ff)) = synth_clip(dir.path(), 360, "preview_window_under_xvfb") else {
         return;
     };
     let t0 = Instant::now();
@@ -367,10 +367,10 @@ fn preview_window_under_xvfb() {
         .spawn()
         .unwrap();
     // Screenshots until the window shows a tracked frame (model loading and the first
-    // detection take a moment on a loaded machine), while the 6 s clip plays.
+    // detection take a moment on a loaded machine), while the clip plays.
     let shot = dir.path().join("window.png");
     let mut counts = (0, 0, 0);
-    let deadline = Instant::now() + Duration::from_secs(5);
+    let deadline = Instant::now() + Duration::from_secs(10);
     while Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(500));
         let grab = Command::new(&ff)
