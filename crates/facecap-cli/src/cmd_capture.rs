@@ -631,11 +631,7 @@ fn capture_one(
     if let Some(tr) = tensor {
         tr.finish()?;
     }
-    let fps = if info.fps.is_finite() && info.fps > 0.0 {
-        info.fps
-    } else {
-        facecap_pipeline::livelink::FALLBACK_FPS
-    };
+    let fps = facecap_pipeline::livelink::rate_or_fallback(info.fps);
     let written = facecap_pipeline::outputs::write_solve_outputs(
         out_dir,
         &setup.expression.rig,

@@ -352,11 +352,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         if let Some(l) = landmarks {
             l.finish()?;
         }
-        let fps = if info.fps.is_finite() && info.fps > 0.0 {
-            info.fps
-        } else {
-            facecap_pipeline::livelink::FALLBACK_FPS
-        };
+        let fps = facecap_pipeline::livelink::rate_or_fallback(info.fps);
         let written = facecap_pipeline::outputs::write_solve_outputs(
             dir,
             &parts.expression.rig,

@@ -106,11 +106,7 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
     let mut times: Vec<f32> = Vec::with_capacity(frames.len());
     let mut weights: Vec<Vec<f32>> = Vec::with_capacity(frames.len());
     let fps = facecap_pipeline::open_video(&a.source, 1)?.info().fps;
-    let fps = if fps.is_finite() && fps > 0.0 {
-        fps
-    } else {
-        facecap_pipeline::livelink::FALLBACK_FPS
-    };
+    let fps = facecap_pipeline::livelink::rate_or_fallback(fps);
     for (r, f) in src.records.iter().zip(&frames) {
         let t = facecap_pipeline::outputs::keyframe_time(r.frame, fps) as f32;
         if times.last().is_some_and(|&l| t <= l) {

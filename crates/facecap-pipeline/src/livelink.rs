@@ -129,6 +129,15 @@ pub fn mapping(names: &[String]) -> Option<Vec<(usize, f64)>> {
 /// Frames per second used when the video's rate is unknown or not positive.
 pub const FALLBACK_FPS: f64 = 30.0;
 
+/// `fps` when it is a usable frame rate (finite, positive), [`FALLBACK_FPS`] otherwise.
+pub fn rate_or_fallback(fps: f64) -> f64 {
+    if fps.is_finite() && fps > 0.0 {
+        fps
+    } else {
+        FALLBACK_FPS
+    }
+}
+
 /// `HH:MM:SS:FF.mmm` of frame `index` at `fps` frames per second (rounded to whole
 /// frames per second for the `FF` field, as SMPTE timecode is).
 pub fn timecode(index: u64, fps: f64) -> String {
