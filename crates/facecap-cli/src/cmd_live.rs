@@ -197,13 +197,13 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             })
         }
     };
-    let source = open_live(&input, None, raw)?;
+    let (source, child) = open_live(&input, None, raw, &controls.stop)?;
     let info = source.info().clone();
     let camera = match args.camera.as_deref() {
         Some(c) => parse_camera(c)?,
         None => Intrinsics::default_for_frame(info.width, info.height)?,
     };
-    let live = LatestFrame::spawn(source, controls.stop.clone())?;
+    let live = LatestFrame::spawn(source, controls.stop.clone())?.with_child(child);
     let (stats, arrivals) = (live.stats(), live.arrivals());
     // Without --out the CSVs go to a temporary folder and are never committed.
     let scratch = tempfile::tempdir().context("creating a temporary folder")?;

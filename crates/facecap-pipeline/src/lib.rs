@@ -64,7 +64,7 @@ pub use expression::{
     build_expression_solve, Calibrated, ExpressionResult, ExpressionSetup, ExpressionSink, LiveNeutral,
     NeutralCalibration, SolvedFrame,
 };
-pub use live::{open_live, LatestFrame, LiveInput};
+pub use live::{open_live, ChildGuard, LatestFrame, LiveInput};
 pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use net::{LiveOutputs, LiveSink};
 pub use preview::{write_preview, PreviewParams, PreviewReport};

@@ -106,7 +106,22 @@ impl LiveInput {
                 a.extend(["-i".to_string(), device.display().to_string()]);
             }
             LiveInput::Url(u) => {
-                a.extend(["-fflags", "nobuffer", "-flags", "low_delay", "-i"].map(String::from));
+                // ffmpeg probes a stream for up to 5 s of it by default before the first
+                // frame comes out; half a second finds the codec of a live stream
+                a.extend(
+                    [
+                        "-fflags",
+                        "nobuffer",
+                        "-flags",
+                        "low_delay",
+                        "-analyzeduration",
+                        "500000",
+                        "-probesize",
+                        "500000",
+                        "-i",
+                    ]
+                    .map(String::from),
+                );
                 a.push(u.clone());
             }
             LiveInput::File { path, realtime } => {
@@ -139,17 +154,23 @@ pub struct RawInput {
 /// # Errors
 /// A file that does not exist, ffmpeg missing or failing to start, or a stream whose
 /// first bytes are not a Y4M header.
-pub fn open_live(input: &LiveInput, ffmpeg: Option<&Path>, raw: Option<RawInput>) -> Result<Box<dyn FrameSource>> {
+pub fn open_live(
+    input: &LiveInput,
+    ffmpeg: Option<&Path>,
+    raw: Option<RawInput>,
+    stop: &Arc<AtomicBool>,
+) -> Result<(Box<dyn FrameSource>, Option<ChildGuard>)> {
     if let LiveInput::File { path, .. } = input {
         std::fs::metadata(path).map_err(|e| facecap_core::Error::io(path, e))?;
     }
     let Some(args) = input.ffmpeg_input_args() else {
         let stdin = Box::new(std::io::stdin());
         let name = PathBuf::from("<stdin>");
-        return Ok(match raw {
+        let source: Box<dyn FrameSource> = match raw {
             Some(r) => Box::new(RawStream::new(stdin, name, r.width, r.height, r.format, r.fps)?),
             None => Box::new(Y4mStream::new(stdin, name, None)?),
-        });
+        };
+        return Ok((source, None));
     };
     let ffmpeg = facecap_core::video::ffmpeg::locate_ffmpeg(ffmpeg)?;
     let name = match input {
@@ -175,7 +196,61 @@ pub fn open_live(input: &LiveInput, ffmpeg: Option<&Path>, raw: Option<RawInput>
         let _ = child.wait();
         return Err(Error::invalid("ffmpeg", "no stdout pipe", "a piped child process"));
     };
-    Ok(Box::new(Y4mStream::new(Box::new(stdout), name, Some(child))?))
+    // The header comes with the first frame: a camera or a stream that sends nothing
+    // would block here for ever, so a stop (Ctrl-C, SIGTERM) meanwhile kills ffmpeg.
+    let guard = ChildGuard::new(child);
+    let header_read = Arc::new(AtomicBool::new(false));
+    let watchdog = {
+        let (g, done, stop) = (guard.clone(), header_read.clone(), stop.clone());
+        std::thread::Builder::new()
+            .name("facecap-live-open".into())
+            .spawn(move || {
+                while !done.load(Ordering::SeqCst) {
+                    if stop.load(Ordering::SeqCst) {
+                        g.kill();
+                        return;
+                    }
+                    std::thread::sleep(STOP_POLL);
+                }
+            })
+            .map_err(|e| Error::invalid("live open thread", e, "a thread the system can start"))?
+    };
+    let opened = Y4mStream::with_guard(Box::new(stdout), name.clone(), Some(guard.clone()));
+    header_read.store(true, Ordering::SeqCst);
+    let _ = watchdog.join();
+    if stop.load(Ordering::SeqCst) {
+        guard.kill();
+        return Err(Error::invalid(
+            "live input",
+            format!("{}: stopped before the first frame came", name.display()),
+            "a stream that sends frames",
+        ));
+    }
+    Ok((Box::new(opened?), Some(guard)))
+}
+
+/// The ffmpeg child behind a live source, shared so that it can be stopped from outside
+/// the reader thread: a read blocked on a camera or network stream that sends nothing
+/// never returns by itself, and the child would outlive facecap.
+#[derive(Debug, Clone)]
+pub struct ChildGuard(Arc<Mutex<Option<Child>>>);
+
+impl ChildGuard {
+    fn new(child: Child) -> Self {
+        ChildGuard(Arc::new(Mutex::new(Some(child))))
+    }
+
+    /// Kills and reaps the child; later calls do nothing.
+    pub fn kill(&self) {
+        let taken = match self.0.lock() {
+            Ok(mut g) => g.take(),
+            Err(p) => p.into_inner().take(),
+        };
+        if let Some(mut c) = taken {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
 }
 
 /// A Y4M stream from any reader (module docs). Chroma is read and discarded: live
@@ -189,7 +264,7 @@ pub struct Y4mStream {
     chroma: Vec<u8>,
     lut: Option<[u8; 256]>,
     next_index: u64,
-    child: Option<Child>,
+    child: Option<ChildGuard>,
     done: bool,
 }
 
@@ -235,6 +310,14 @@ impl Y4mStream {
     /// # Errors
     /// A stream that does not start with a valid Y4M header.
     pub fn new(reader: Box<dyn Read + Send>, name: PathBuf, child: Option<Child>) -> Result<Self> {
+        Self::with_guard(reader, name, child.map(ChildGuard::new))
+    }
+
+    /// [`Y4mStream::new`] with the child already behind a [`ChildGuard`].
+    ///
+    /// # Errors
+    /// A stream that does not start with a valid Y4M header.
+    pub fn with_guard(reader: Box<dyn Read + Send>, name: PathBuf, child: Option<ChildGuard>) -> Result<Self> {
         let mut reader = BufReader::with_capacity(1 << 16, reader);
         let mut line = Vec::with_capacity(128);
         let mut complete = false;
@@ -327,9 +410,8 @@ impl Y4mStream {
 
 impl Drop for Y4mStream {
     fn drop(&mut self) {
-        if let Some(c) = self.child.as_mut() {
-            let _ = c.kill();
-            let _ = c.wait();
+        if let Some(c) = &self.child {
+            c.kill();
         }
     }
 }
@@ -588,6 +670,17 @@ pub struct LatestFrame {
     stop: Arc<AtomicBool>,
     stats: Arc<LiveStats>,
     arrivals: ArrivalLog,
+    child: Option<ChildGuard>,
+}
+
+impl Drop for LatestFrame {
+    /// Kills the source's ffmpeg child, if any: the reader thread may be blocked in a read
+    /// that only the child's end can finish.
+    fn drop(&mut self) {
+        if let Some(c) = &self.child {
+            c.kill();
+        }
+    }
 }
 
 impl std::fmt::Debug for LatestFrame {
@@ -658,7 +751,16 @@ impl LatestFrame {
             stop,
             stats,
             arrivals,
+            child: None,
         })
+    }
+
+    /// Kills `child` (the ffmpeg behind the source, from [`open_live`]) when this is
+    /// dropped, so that a run stopped while the stream is silent ends at once.
+    #[must_use]
+    pub fn with_child(mut self, child: Option<ChildGuard>) -> Self {
+        self.child = child;
+        self
     }
 
     /// The counters (shared; they keep counting while the source runs).
