@@ -134,6 +134,11 @@ pub struct Args {
     /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
     #[arg(long, value_name = "auto|N", default_value = "auto")]
     pub upsample: Upsample,
+    /// Landmark front end: `dlib68` (dlib's detector and 68-point model, LK tracking) or
+    /// `mesh` (MediaPipe's face detector and 478-point face mesh, read as the same 68
+    /// points; docs/mesh.md).
+    #[arg(long, value_name = "dlib68|mesh", default_value = "dlib68")]
+    pub landmarks: facecap_pipeline::FrontEnd,
 }
 
 /// Everything shared by all videos.
@@ -313,6 +318,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         smooth: args.smooth,
         shape_model: None,
         upsample: args.upsample,
+        front_end: args.landmarks,
     })?;
     let muscles = args
         .muscles
@@ -360,6 +366,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "capture": args_echo,
         "sheet_frames": args.sheet_frames,
         "upsample": args.upsample.to_string(),
+        "landmarks": format!("{:?}", args.landmarks),
         "files": {
             "rig": file(args.rig.as_ref()),
             "landmark_map": file(args.landmark_map.as_ref()),
@@ -549,7 +556,7 @@ fn capture_one(
             false
         }
     };
-    let source = facecap_pipeline::open_video_with(video, args.decode_threads, args.strict)?;
+    let source = facecap_pipeline::open_video_rgb(video, args.decode_threads, args.strict, setup.tracker.needs_rgb())?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     // Temporary files of an earlier run that was killed (SIGKILL, power loss) go first.

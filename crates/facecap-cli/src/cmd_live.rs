@@ -176,6 +176,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         smooth: false,
         shape_model: None,
         upsample: args.upsample,
+        ..TrackerPolicy::default()
     })?;
     let outputs_osc = args.osc.as_deref().map(udp_to).transpose()?;
     let outputs_ll = args.livelink.as_deref().map(udp_to).transpose()?;

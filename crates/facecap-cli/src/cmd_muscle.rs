@@ -219,6 +219,7 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
                 smooth: a.smooth,
                 shape_model: a.model.clone(),
                 upsample: facecap_landmarks::detect::Upsample::Auto,
+                ..TrackerPolicy::default()
             })?;
             tracker.run(src, &mut [&mut sink], &mut RunControl::default())?
         }

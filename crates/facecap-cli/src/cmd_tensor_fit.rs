@@ -150,6 +150,7 @@ pub fn fit_video(
                 smooth: false,
                 shape_model: o.shape_model.clone(),
                 upsample: facecap_landmarks::detect::Upsample::Auto,
+                ..TrackerPolicy::default()
             })?;
             let src = facecap_pipeline::open_video(video, 1).with_context(|| format!("opening {}", video.display()))?;
             let size = (src.info().width, src.info().height);

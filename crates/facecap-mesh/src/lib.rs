@@ -28,6 +28,7 @@
 
 pub mod detector;
 pub mod error;
+pub mod ibug68;
 pub mod roi;
 pub mod smoothing;
 pub mod tflite;

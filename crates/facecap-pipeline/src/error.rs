@@ -25,6 +25,9 @@ pub enum Error {
     /// From `facecap-muscle`.
     #[error(transparent)]
     Muscle(#[from] facecap_muscle::Error),
+    /// From `facecap-mesh` (the dense face mesh front end).
+    #[error(transparent)]
+    Mesh(#[from] facecap_mesh::Error),
     /// A model file is not in the model cache.
     #[error("{name} is not in the model cache ({cache}): run scripts/setup.sh or pass the model's path")]
     MissingModel {

@@ -72,4 +72,7 @@ pub use render::{RenderWorkspace, RigRenderer, View};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};
-pub use tracker::{open_video, open_video_with, replay, Queues, RunControl, RunReport, TrackerPolicy, VideoTracker};
+pub use tracker::{
+    open_video, open_video_rgb, open_video_with, replay, FrontEnd, Queues, RunControl, RunReport, TrackerPolicy,
+    VideoTracker,
+};

@@ -90,6 +90,30 @@ pub struct TrackerPolicy {
     pub shape_model: Option<PathBuf>,
     /// Detector upsampling (`Upsample::Auto`: dlib's `detector(img, 1)` recall at less cost).
     pub upsample: facecap_landmarks::detect::Upsample,
+    /// Which landmarks: dlib's 68 points, or the 478-point face mesh read as 68 points.
+    pub front_end: FrontEnd,
+}
+
+/// Where the 68 landmarks come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FrontEnd {
+    /// dlib's HOG detector and 68-point ERT shape predictor, tracked with LK.
+    #[default]
+    Dlib68,
+    /// MediaPipe's face detector and 478-point face mesh model (run by `facecap-mesh`),
+    /// read as the 68 iBUG points ([`facecap_mesh::ibug68`]); needs colour frames.
+    Mesh,
+}
+
+impl std::str::FromStr for FrontEnd {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "dlib68" => Ok(FrontEnd::Dlib68),
+            "mesh" => Ok(FrontEnd::Mesh),
+            _ => Err(Error::invalid("landmark front end", s, "`dlib68` or `mesh`")),
+        }
+    }
 }
 
 impl Default for TrackerPolicy {
@@ -99,6 +123,7 @@ impl Default for TrackerPolicy {
             smooth: false,
             shape_model: None,
             upsample: facecap_landmarks::detect::Upsample::Auto,
+            front_end: FrontEnd::Dlib68,
         }
     }
 }
@@ -125,6 +150,7 @@ impl TrackerPolicy {
 pub struct VideoTracker {
     tracker: LandmarkTracker<FaceDetector, ShapePredictor>,
     iris: IrisEstimator,
+    mesh: Option<facecap_mesh::MeshTracker>,
 }
 
 /// Per-run controls: interruption and a per-frame callback on the tracking thread.
@@ -252,14 +278,65 @@ pub fn open_video(path: &Path, decode_threads: u32) -> Result<Box<dyn FrameSourc
 /// # Errors
 /// As [`facecap_core::video::open_source`].
 pub fn open_video_with(path: &Path, decode_threads: u32, strict: bool) -> Result<Box<dyn FrameSource>> {
+    open_video_rgb(path, decode_threads, strict, false)
+}
+
+/// [`open_video_with`], with colour frames too when `rgb` ([`VideoTracker::needs_rgb`]).
+///
+/// # Errors
+/// As [`facecap_core::video::open_source`].
+pub fn open_video_rgb(path: &Path, decode_threads: u32, strict: bool, rgb: bool) -> Result<Box<dyn FrameSource>> {
     Ok(open_source(
         path,
         &SourceOptions {
             threads: decode_threads,
             strict,
+            rgb,
             ..SourceOptions::default()
         },
     )?)
+}
+
+/// One frame through the mesh front end into `out` (as the dlib tracker fills it): the
+/// 68 iBUG points of the mesh, its presence score as the confidence, the box of the
+/// 68 points.
+fn track_mesh(
+    tracker: &facecap_mesh::MeshTracker,
+    frame: &Frame,
+    ws: &mut facecap_mesh::MeshWorkspace,
+    state: &mut facecap_mesh::MeshState,
+    mesh: &mut facecap_mesh::FaceMesh,
+    out: &mut TrackedFrame,
+) -> Result<()> {
+    let Some(rgb) = frame.rgb.as_ref() else {
+        return Err(Error::invalid(
+            "frame",
+            "a grey frame",
+            "colour frames for the mesh front end (open the source with rgb)",
+        ));
+    };
+    let report = tracker.track_into(
+        &facecap_mesh::RgbView::from_image(rgb)?,
+        frame.timestamp_s,
+        ws,
+        state,
+        mesh,
+    )?;
+    out.success = false;
+    out.confidence = 0.0;
+    out.rect = None;
+    if !report.has_face() {
+        return Ok(());
+    }
+    let Some(points) = facecap_mesh::ibug68::ibug68(&mesh.points) else {
+        return Ok(());
+    };
+    out.landmarks = Landmarks68::from_fn(|i| points[i]);
+    out.raw = out.landmarks.clone();
+    out.success = out.landmarks.is_finite();
+    out.confidence = f64::from(report.presence).clamp(0.0, 1.0);
+    out.rect = Some(out.landmarks.bounding_box());
+    Ok(())
 }
 
 impl VideoTracker {
@@ -277,10 +354,24 @@ impl VideoTracker {
         if policy.smooth {
             params.filter = Some(OneEuroParams::default());
         }
+        let mesh = match policy.front_end {
+            FrontEnd::Dlib68 => None,
+            FrontEnd::Mesh => Some(facecap_mesh::MeshTracker::new(
+                facecap_mesh::MeshModels::from_cache()?,
+                facecap_mesh::MeshParams::default(),
+            )?),
+        };
         Ok(VideoTracker {
             tracker: LandmarkTracker::new(detector, ert, params)?,
             iris: IrisEstimator::new(IrisParams::default())?,
+            mesh,
         })
+    }
+
+    /// Whether frames must come with colour ([`Frame::rgb`]): the mesh front end's
+    /// models read RGB. Open the source with [`open_video_rgb`] accordingly.
+    pub fn needs_rgb(&self) -> bool {
+        self.mesh.is_some()
     }
 
     /// Runs `source` through the tracker into `sinks` (module docs). The sinks are not
@@ -327,6 +418,14 @@ impl VideoTracker {
         let mut ws = tracker.new_workspace();
         let mut state = TrackerState::new();
         let mut tracked = TrackedFrame::default();
+        let mut mesh_front = self.mesh.as_ref().map(|m| {
+            (
+                m,
+                m.workspace(),
+                facecap_mesh::MeshState::default(),
+                facecap_mesh::FaceMesh::default(),
+            )
+        });
         let interrupted = control.interrupted;
         let on_frame = &mut control.on_frame;
         let mut rejected = Vec::new();
@@ -396,6 +495,9 @@ impl VideoTracker {
                             undecodable.push((index, reason));
                             // the tracker starts again from a detection after the gap
                             state = TrackerState::new();
+                            if let Some((_, _, mstate, _)) = mesh_front.as_mut() {
+                                *mstate = facecap_mesh::MeshState::default();
+                            }
                             let face = TrackedFace {
                                 index,
                                 timestamp: timestamp.max(0.0),
@@ -416,7 +518,14 @@ impl VideoTracker {
                         return Err(Error::Interrupted { frame: frame.index });
                     }
                     let t = Instant::now();
-                    tracker.track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut tracked)?;
+                    match mesh_front.as_mut() {
+                        None => {
+                            tracker.track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut tracked)?;
+                        }
+                        Some((m, mws, mstate, mesh)) => {
+                            track_mesh(m, &frame, mws, mstate, mesh, &mut tracked)?;
+                        }
+                    }
                     busy += t.elapsed().as_secs_f64();
                     let mut wanted = 0u64;
                     for (k, (w, n)) in wants.iter().zip(taken.iter_mut()).enumerate() {
@@ -433,6 +542,9 @@ impl VideoTracker {
                             tracked.success = false;
                             // track from a fresh detection next frame, not from these points
                             state = TrackerState::new();
+                            if let Some((_, _, mstate, _)) = mesh_front.as_mut() {
+                                *mstate = facecap_mesh::MeshState::default();
+                            }
                         }
                     }
                     let iris = if want_iris && tracked.success {
