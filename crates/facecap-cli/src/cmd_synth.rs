@@ -21,9 +21,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_core::csv::{landmark_columns, FrameCsvWriter, FrameRow};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
-use facecap_core::pnp::{solve_pnp, PnpParams};
+use facecap_geom::pnp::{solve_pnp, PnpParams};
+use facecap_io::csv::{landmark_columns, FrameCsvWriter, FrameRow};
 use image::{GrayImage, RgbImage};
 use nalgebra::{Point2, Point3, Rotation3, Vector3};
 
@@ -185,9 +185,9 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
     if !(1..=240).contains(&fps) {
         anyhow::bail!("--fps must be in 1..=240, got {fps}");
     }
-    let rgb = facecap_core::image_io::load_rgb(photo)?;
+    let rgb = facecap_io::image_io::load_rgb(photo)?;
     let mut gray = GrayImage::new(rgb.width(), rgb.height());
-    facecap_core::image_io::rgb_to_gray_into(&rgb, &mut gray);
+    facecap_io::image_io::rgb_to_gray_into(&rgb, &mut gray);
     let lms = detect_landmarks(&gray)?.ok_or_else(|| anyhow::anyhow!("no face found in {}", photo.display()))?;
     let (rig, _) = crate::default_rig::default_rig()?;
     let k = Intrinsics::default_for_frame(rgb.width(), rgb.height())?;
@@ -222,7 +222,7 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         (0.0, h),
         (0.0, h / 2.0),
     ]);
-    let tris = crate::default_rig::delaunay(&src_pts);
+    let tris = facecap_geom::delaunay::delaunay(&src_pts);
 
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let stem = "synth";
