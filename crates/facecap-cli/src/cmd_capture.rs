@@ -631,7 +631,7 @@ fn capture_one(
     if let Some(tr) = tensor {
         tr.finish()?;
     }
-    let fps = facecap_pipeline::livelink::rate_or_fallback(info.fps);
+    let fps = facecap_io::livelink::rate_or_fallback(info.fps);
     let written = facecap_pipeline::outputs::write_solve_outputs(
         out_dir,
         &setup.expression.rig,

@@ -234,7 +234,7 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
         .as_ref()
         .map(|i| i.fps)
         .filter(|f| f.is_finite() && *f > 0.0)
-        .unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS);
+        .unwrap_or(facecap_io::livelink::FALLBACK_FPS);
     let mut anim = MorphAnimation::default();
     for f in &history {
         let t = facecap_pipeline::outputs::keyframe_time(f.index, fps) as f32;

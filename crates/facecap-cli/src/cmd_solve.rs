@@ -166,7 +166,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let fps = match args.fps {
         Some(f) if f.is_finite() && f > 0.0 => f,
         Some(f) => bail!("--fps {f}: expected a finite number > 0"),
-        None => fps_of(&records).unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS),
+        None => fps_of(&records).unwrap_or(facecap_io::livelink::FALLBACK_FPS),
     };
     let objective = ObjectiveParams {
         l1: args.l1,

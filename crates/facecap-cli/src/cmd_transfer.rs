@@ -106,7 +106,7 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
     let mut times: Vec<f32> = Vec::with_capacity(frames.len());
     let mut weights: Vec<Vec<f32>> = Vec::with_capacity(frames.len());
     let fps = facecap_pipeline::open_video(&a.source, 1)?.info().fps;
-    let fps = facecap_pipeline::livelink::rate_or_fallback(fps);
+    let fps = facecap_io::livelink::rate_or_fallback(fps);
     for (r, f) in src.records.iter().zip(&frames) {
         let t = facecap_pipeline::outputs::keyframe_time(r.frame, fps) as f32;
         if times.last().is_some_and(|&l| t <= l) {
@@ -141,7 +141,7 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
             let pts = model.generate_points(&f.w_id, &f.w_exp)?;
             let index = src.records.get(i).map_or(i as u64, |r| r.frame);
             facecap_io::obj::write_obj_positions(
-                &facecap_pipeline::outputs::obj_path(&a.out, index),
+                facecap_pipeline::outputs::obj_path(&a.out, index),
                 &pts,
                 &model.triangles,
             )?;

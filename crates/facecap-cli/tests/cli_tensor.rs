@@ -190,7 +190,7 @@ fn build_generate_fit_transfer_on_synthetic_data() {
     let exps = ["neutral", "open", "smile", "brows"];
     for i in 0..4 {
         for (e, name) in exps.iter().enumerate() {
-            facecap_io::obj::write_obj_positions(&db.join(format!("id{i}_{name}.obj")), &face(i, e), &triangles())
+            facecap_io::obj::write_obj_positions(db.join(format!("id{i}_{name}.obj")), &face(i, e), &triangles())
                 .unwrap();
         }
     }

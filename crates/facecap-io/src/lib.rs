@@ -10,6 +10,7 @@
 //! | [`obj`] | Wavefront OBJ read/write |
 //! | [`csv`] | the per-frame CSV (`frame,timestamp,success,confidence,...`) |
 //! | [`formats`] | iBUG `.pts`, dlib imglab XML, menpo `.ljson` |
+//! | [`livelink`] | Live Link Face CSV (`livelink.csv`): ARKit curve order, timecodes, head angles |
 //!
 //! Errors are `facecap_core::Error` (re-exported here), so a caller that already converts
 //! core's error needs nothing new. Every file is written through `facecap_core::atomic`.
@@ -20,5 +21,6 @@ pub mod csv;
 pub mod formats;
 pub mod gltf_io;
 pub mod image_io;
+pub mod livelink;
 pub mod obj;
 pub mod video;

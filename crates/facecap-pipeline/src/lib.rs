@@ -45,7 +45,6 @@ pub mod batch;
 pub mod error;
 pub mod expression;
 pub mod live;
-pub mod livelink;
 pub mod muscle;
 pub mod net;
 pub mod openface;

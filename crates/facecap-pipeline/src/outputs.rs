@@ -29,7 +29,7 @@ use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionResult, SolvedFrame};
-use crate::livelink::{self, LiveLinkRow};
+use facecap_io::livelink::{self, LiveLinkRow};
 
 /// Coordinate frame of the OBJ meshes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -23,7 +23,7 @@ use std::path::Path;
 
 use facecap_core::camera::{pose_row, ModelToCamera};
 
-use crate::error::Result;
+use facecap_core::error::Result;
 
 /// The 52 ARKit blendshapes in Live Link Face order.
 pub const LIVE_LINK_SHAPES: [&str; 52] = [
