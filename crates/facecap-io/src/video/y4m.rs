@@ -412,6 +412,25 @@ pub fn write_gray_y4m(
     Ok(())
 }
 
+/// Writes RGB frames as a 4:4:4 limited-range BT.601 Y4M stream.
+pub fn write_rgb_y4m(out: &mut dyn std::io::Write, frames: &[image::RgbImage], fps: u32) -> std::io::Result<()> {
+    let (w, h) = frames.first().map_or((0, 0), |f| f.dimensions());
+    writeln!(out, "YUV4MPEG2 W{w} H{h} F{fps}:1 Ip A1:1 C444")?;
+    let n = (w * h) as usize;
+    let mut planes = vec![0u8; 3 * n];
+    for f in frames {
+        for (i, p) in f.pixels().enumerate() {
+            let [r, g, b] = p.0.map(f64::from);
+            planes[i] = (16.0 + (65.481 * r + 128.553 * g + 24.966 * b) / 255.0).round() as u8;
+            planes[n + i] = (128.0 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255.0).round() as u8;
+            planes[2 * n + i] = (128.0 + (112.0 * r - 93.786 * g - 18.214 * b) / 255.0).round() as u8;
+        }
+        out.write_all(b"FRAME\n")?;
+        out.write_all(&planes)?;
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
