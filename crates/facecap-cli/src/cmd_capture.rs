@@ -249,7 +249,7 @@ pub(crate) fn expression_parts(
         Some(path) => {
             let map_path = landmark_map
                 .ok_or_else(|| anyhow::anyhow!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"))?;
-            let mesh = facecap_core::gltf_io::read_morph_mesh(path)?;
+            let mesh = facecap_io::gltf_io::read_morph_mesh(path)?;
             let map = LandmarkMap::from_json_file(map_path)?;
             (mesh, map, path.display().to_string())
         }
@@ -638,7 +638,7 @@ fn capture_one(
     if let Some(tr) = tensor {
         tr.finish()?;
     }
-    let fps = facecap_pipeline::livelink::rate_or_fallback(info.fps);
+    let fps = facecap_io::livelink::rate_or_fallback(info.fps);
     let written = facecap_pipeline::outputs::write_solve_outputs(
         out_dir,
         &setup.expression.rig,

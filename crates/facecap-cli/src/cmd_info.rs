@@ -24,7 +24,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use facecap_core::video::{open_source, Frame, Luma, SourceKind, SourceOptions, DEFAULT_FOLDER_FPS};
+use facecap_io::video::{open_source, Frame, Luma, SourceKind, SourceOptions, DEFAULT_FOLDER_FPS};
 use serde::Serialize;
 
 /// Arguments of `facecap info`.

@@ -263,7 +263,7 @@ fn process_image(
             sp.predict_into(grey, rect, ws, points)
                 .with_context(|| format!("predicting landmarks in {}", input.display()))?;
             let pts_name = format!("{stem}_{k}.pts");
-            facecap_core::formats::pts::write_pts_points(args.out.join(&pts_name), points)
+            facecap_io::formats::pts::write_pts_points(args.out.join(&pts_name), points)
                 .with_context(|| format!("writing {pts_name}"))?;
             let (l, t, r, b) = rect.to_dlib();
             let _ = writeln!(
@@ -277,7 +277,7 @@ fn process_image(
             drawn.push((*rect, points.to_vec()));
         }
         if args.draw {
-            let mut rgb = match facecap_core::image_io::load_rgb(input) {
+            let mut rgb = match facecap_io::image_io::load_rgb(input) {
                 Ok(img) => img,
                 Err(_) => image::DynamicImage::ImageLuma8(grey.clone()).to_rgb8(),
             };
@@ -313,9 +313,9 @@ fn run_video(job: &VideoJob) -> anyhow::Result<ExitCode> {
 
 fn load_grey(path: &Path, mode: GreyMode, out: &mut GrayImage) -> anyhow::Result<()> {
     match mode {
-        GreyMode::Bt601 => *out = facecap_core::image_io::load_gray(path)?,
+        GreyMode::Bt601 => *out = facecap_io::image_io::load_gray(path)?,
         GreyMode::Mean => {
-            let rgb = facecap_core::image_io::load_rgb(path)?;
+            let rgb = facecap_io::image_io::load_rgb(path)?;
             *out = GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
                 let p = rgb.get_pixel(x, y).0;
                 image::Luma([((u32::from(p[0]) + u32::from(p[1]) + u32::from(p[2])) / 3) as u8])

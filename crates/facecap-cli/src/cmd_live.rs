@@ -194,7 +194,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 width,
                 height,
                 format: args.raw_format.parse()?,
-                fps: args.fps.unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS),
+                fps: args.fps.unwrap_or(facecap_io::livelink::FALLBACK_FPS),
             })
         }
     };
@@ -353,7 +353,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         if let Some(l) = landmarks {
             l.finish()?;
         }
-        let fps = facecap_pipeline::livelink::rate_or_fallback(info.fps);
+        let fps = facecap_io::livelink::rate_or_fallback(info.fps);
         let written = facecap_pipeline::outputs::write_solve_outputs(
             dir,
             &parts.expression.rig,

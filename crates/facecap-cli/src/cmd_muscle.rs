@@ -21,9 +21,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use facecap_core::camera::Intrinsics;
-use facecap_core::gltf_io::MorphAnimation;
 use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::mesh::MorphMesh;
+use facecap_io::gltf_io::MorphAnimation;
 use facecap_muscle::retarget::{bake, JAW_TARGET};
 use facecap_muscle::rig::MuscleRig;
 use facecap_muscle::set::MuscleSet;
@@ -125,9 +125,9 @@ fn read_mesh(path: &Path) -> anyhow::Result<MorphMesh> {
         .unwrap_or("")
         .to_ascii_lowercase();
     let mm = match ext.as_str() {
-        "glb" | "gltf" => facecap_core::gltf_io::read_morph_mesh(path)?,
+        "glb" | "gltf" => facecap_io::gltf_io::read_morph_mesh(path)?,
         "obj" => MorphMesh {
-            base: facecap_core::obj::read_obj(path)?,
+            base: facecap_io::obj::read_obj(path)?,
             targets: Vec::new(),
         },
         _ => anyhow::bail!("--mesh {}: expected a .glb, .gltf or .obj file", path.display()),
@@ -160,7 +160,7 @@ fn load(
 fn run_bake(a: BakeArgs) -> anyhow::Result<std::process::ExitCode> {
     let (mm, _map, set, rig) = load(&a.mesh, &a.landmark_map, a.muscles.as_deref())?;
     let baked = bake(&rig, &mm)?;
-    facecap_core::gltf_io::write_glb(&a.out, &baked, None).with_context(|| format!("writing {}", a.out.display()))?;
+    facecap_io::gltf_io::write_glb(&a.out, &baked, None).with_context(|| format!("writing {}", a.out.display()))?;
     if let Some(p) = &a.write_set {
         let text = set.to_json_string()?;
         facecap_core::atomic::write_atomic(p, |w| w.write_all(text.as_bytes()))
@@ -235,7 +235,7 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
         .as_ref()
         .map(|i| i.fps)
         .filter(|f| f.is_finite() && *f > 0.0)
-        .unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS);
+        .unwrap_or(facecap_io::livelink::FALLBACK_FPS);
     let mut anim = MorphAnimation::default();
     for f in &history {
         let t = facecap_pipeline::outputs::keyframe_time(f.index, fps) as f32;
@@ -254,7 +254,7 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
     }
     let glb = a.out.join("posed.glb");
     if !anim.times_s.is_empty() {
-        facecap_core::gltf_io::write_glb(&glb, &baked, Some(&anim))
+        facecap_io::gltf_io::write_glb(&glb, &baked, Some(&anim))
             .with_context(|| format!("writing {}", glb.display()))?;
     }
     if a.report {

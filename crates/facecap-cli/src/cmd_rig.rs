@@ -33,7 +33,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 .landmark_map
                 .as_ref()
                 .ok_or_else(|| anyhow::anyhow!("--rig needs --landmark-map (68 iBUG landmarks -> vertex ids)"))?;
-            let mesh = facecap_core::gltf_io::read_morph_mesh(path)?;
+            let mesh = facecap_io::gltf_io::read_morph_mesh(path)?;
             (mesh, LandmarkMap::from_json_file(map_path)?, path.display().to_string())
         }
         None => {

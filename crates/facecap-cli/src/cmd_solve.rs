@@ -92,7 +92,7 @@ pub struct Args {
 }
 
 /// Frame rate from the records' frame numbers and timestamps (`None` when they do not say).
-fn fps_of(records: &[facecap_core::csv::LandmarkRecord]) -> Option<f64> {
+fn fps_of(records: &[facecap_io::csv::LandmarkRecord]) -> Option<f64> {
     let (a, b) = (records.first()?, records.last()?);
     let (df, dt) = (b.frame.checked_sub(a.frame)? as f64, b.timestamp - a.timestamp);
     (df > 0.0 && dt > 0.0).then(|| df / dt)
@@ -117,7 +117,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     };
     let (mesh, map, name) = match (&args.rig, &args.landmark_map) {
         (Some(r), Some(m)) => (
-            facecap_core::gltf_io::read_morph_mesh(r).with_context(|| format!("loading rig {}", r.display()))?,
+            facecap_io::gltf_io::read_morph_mesh(r).with_context(|| format!("loading rig {}", r.display()))?,
             LandmarkMap::from_json_file(m)?,
             r.display().to_string(),
         ),
@@ -166,7 +166,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let fps = match args.fps {
         Some(f) if f.is_finite() && f > 0.0 => f,
         Some(f) => bail!("--fps {f}: expected a finite number > 0"),
-        None => fps_of(&records).unwrap_or(facecap_pipeline::livelink::FALLBACK_FPS),
+        None => fps_of(&records).unwrap_or(facecap_io::livelink::FALLBACK_FPS),
     };
     let objective = ObjectiveParams {
         l1: args.l1,

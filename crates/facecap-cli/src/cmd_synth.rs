@@ -16,14 +16,13 @@
 //!    `R = Rz Ry Rx` in model axes, and the weights by name). `facecap capture` finds it
 //!    next to the video and reports its errors against it.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_core::csv::{landmark_columns, FrameCsvWriter, FrameRow};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
-use facecap_core::pnp::{solve_pnp, PnpParams};
+use facecap_geom::pnp::{solve_pnp, PnpParams};
+use facecap_io::csv::{landmark_columns, FrameCsvWriter, FrameRow};
 use image::{GrayImage, RgbImage};
 use nalgebra::{Point2, Point3, Rotation3, Vector3};
 
@@ -145,25 +144,6 @@ fn rig_points(weights: &[f64], rig: &facecap_core::mesh::MorphMesh) -> Vec<Point
         .collect()
 }
 
-/// Writes RGB frames as a 4:4:4 limited-range BT.601 Y4M stream.
-pub fn write_rgb_y4m(out: &mut dyn Write, frames: &[RgbImage], fps: u32) -> std::io::Result<()> {
-    let (w, h) = frames.first().map_or((0, 0), |f| f.dimensions());
-    writeln!(out, "YUV4MPEG2 W{w} H{h} F{fps}:1 Ip A1:1 C444")?;
-    let n = (w * h) as usize;
-    let mut planes = vec![0u8; 3 * n];
-    for f in frames {
-        for (i, p) in f.pixels().enumerate() {
-            let [r, g, b] = p.0.map(f64::from);
-            planes[i] = (16.0 + (65.481 * r + 128.553 * g + 24.966 * b) / 255.0).round() as u8;
-            planes[n + i] = (128.0 + (-37.797 * r - 74.203 * g + 112.0 * b) / 255.0).round() as u8;
-            planes[2 * n + i] = (128.0 + (112.0 * r - 93.786 * g - 18.214 * b) / 255.0).round() as u8;
-        }
-        out.write_all(b"FRAME\n")?;
-        out.write_all(&planes)?;
-    }
-    Ok(())
-}
-
 /// Runs `facecap synth`.
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let photo = match args.photo.clone() {
@@ -185,9 +165,9 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
     if !(1..=240).contains(&fps) {
         anyhow::bail!("--fps must be in 1..=240, got {fps}");
     }
-    let rgb = facecap_core::image_io::load_rgb(photo)?;
+    let rgb = facecap_io::image_io::load_rgb(photo)?;
     let mut gray = GrayImage::new(rgb.width(), rgb.height());
-    facecap_core::image_io::rgb_to_gray_into(&rgb, &mut gray);
+    facecap_io::image_io::rgb_to_gray_into(&rgb, &mut gray);
     let lms = detect_landmarks(&gray)?.ok_or_else(|| anyhow::anyhow!("no face found in {}", photo.display()))?;
     let (rig, _) = crate::default_rig::default_rig()?;
     let k = Intrinsics::default_for_frame(rgb.width(), rgb.height())?;
@@ -222,7 +202,7 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         (0.0, h),
         (0.0, h / 2.0),
     ]);
-    let tris = crate::default_rig::delaunay(&src_pts);
+    let tris = facecap_geom::delaunay::delaunay(&src_pts);
 
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let stem = "synth";
@@ -266,7 +246,7 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
             values: &values,
         })?;
     }
-    facecap_core::atomic::write_atomic(&video_path, |w| write_rgb_y4m(w, &images, fps))?;
+    facecap_core::atomic::write_atomic(&video_path, |w| facecap_io::video::y4m::write_rgb_y4m(w, &images, fps))?;
     truth.finish()?;
     Ok((video_path, truth_path))
 }

@@ -117,10 +117,8 @@ fn run_build(a: BuildArgs) -> anyhow::Result<std::process::ExitCode> {
     let data = if let Some(dir) = &a.meshes {
         DataTensor::from_mesh_folder(dir)?
     } else if let (Some(idr), Some(exr)) = (&a.identity_rig, &a.expression_rig) {
-        let id_rig =
-            facecap_core::gltf_io::read_morph_mesh(idr).with_context(|| format!("reading {}", idr.display()))?;
-        let ex_rig =
-            facecap_core::gltf_io::read_morph_mesh(exr).with_context(|| format!("reading {}", exr.display()))?;
+        let id_rig = facecap_io::gltf_io::read_morph_mesh(idr).with_context(|| format!("reading {}", idr.display()))?;
+        let ex_rig = facecap_io::gltf_io::read_morph_mesh(exr).with_context(|| format!("reading {}", exr.display()))?;
         let s = RigSampling {
             identities: a.identities,
             seed: a.seed,
@@ -184,15 +182,15 @@ fn write_mesh(model: &TensorModel, w_id: &[f64], w_exp: &[f64], out: &Path) -> a
     match ext.as_str() {
         "obj" => {
             let pts = model.generate_points(w_id, w_exp)?;
-            facecap_tensor::obj::write_obj(out, &pts, &model.triangles)?;
+            facecap_io::obj::write_obj_positions(out, &pts, &model.triangles)?;
         }
         "glb" | "gltf" => {
             let rig = model.expression_rig(w_id)?;
-            let anim = facecap_core::gltf_io::MorphAnimation {
+            let anim = facecap_io::gltf_io::MorphAnimation {
                 times_s: vec![0.0],
                 weights: vec![w_exp.iter().map(|&w| w as f32).collect()],
             };
-            facecap_core::gltf_io::write_morph_file(out, &rig, Some(&anim))?;
+            facecap_io::gltf_io::write_morph_file(out, &rig, Some(&anim))?;
         }
         _ => bail!("output {} must end in .obj or .glb", out.display()),
     }
@@ -218,13 +216,13 @@ fn run_fit(a: FitArgs) -> anyhow::Result<std::process::ExitCode> {
     Ok(std::process::ExitCode::SUCCESS)
 }
 
-fn write_landmarks_csv(path: &Path, records: &[facecap_core::csv::LandmarkRecord]) -> anyhow::Result<()> {
-    let cols = facecap_core::csv::landmark_columns();
-    let mut wr = facecap_core::csv::FrameCsvWriter::create(path, &cols)?;
+fn write_landmarks_csv(path: &Path, records: &[facecap_io::csv::LandmarkRecord]) -> anyhow::Result<()> {
+    let cols = facecap_io::csv::landmark_columns();
+    let mut wr = facecap_io::csv::FrameCsvWriter::create(path, &cols)?;
     let mut values = [0.0; 2 * facecap_core::landmarks::NUM_LANDMARKS];
     for r in records {
-        facecap_core::csv::landmark_values(r.landmarks.as_ref(), &mut values);
-        wr.write_row(&facecap_core::csv::FrameRow {
+        facecap_io::csv::landmark_values(r.landmarks.as_ref(), &mut values);
+        wr.write_row(&facecap_io::csv::FrameRow {
             frame: r.frame,
             timestamp: r.timestamp,
             success: r.success,

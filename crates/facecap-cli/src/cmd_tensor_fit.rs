@@ -15,8 +15,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use facecap_core::csv::{FrameCsvWriter, FrameRow};
 use facecap_core::landmark_map::LandmarkMap;
+use facecap_io::csv::{FrameCsvWriter, FrameRow};
 use facecap_pipeline::tensor_fit::{fit_tensor_video, FrameSupply, VideoFit, VideoFitOptions, FRAME_BUDGET_BYTES};
 use facecap_pipeline::{LandmarkRecorder, RunControl, TrackerPolicy, VideoTracker};
 use facecap_tensor::fit::{FitParams, Method, Projection};

@@ -23,7 +23,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use facecap_core::camera::Intrinsics;
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_core::video::{open_source, Frame, SourceOptions};
+use facecap_io::video::{open_source, Frame, SourceOptions};
 use facecap_tensor::fit::FitState;
 use facecap_tensor::model::TensorModel;
 use facecap_tensor::poisson::PoissonParams;
@@ -106,7 +106,7 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
     let mut times: Vec<f32> = Vec::with_capacity(frames.len());
     let mut weights: Vec<Vec<f32>> = Vec::with_capacity(frames.len());
     let fps = facecap_pipeline::open_video(&a.source, 1)?.info().fps;
-    let fps = facecap_pipeline::livelink::rate_or_fallback(fps);
+    let fps = facecap_io::livelink::rate_or_fallback(fps);
     for (r, f) in src.records.iter().zip(&frames) {
         let t = facecap_pipeline::outputs::keyframe_time(r.frame, fps) as f32;
         if times.last().is_some_and(|&l| t <= l) {
@@ -115,11 +115,11 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
         times.push(t);
         weights.push(f.w_exp.iter().map(|&w| w as f32).collect());
     }
-    let anim = facecap_core::gltf_io::MorphAnimation {
+    let anim = facecap_io::gltf_io::MorphAnimation {
         times_s: times,
         weights,
     };
-    facecap_core::gltf_io::write_glb(a.out.join("transfer.glb"), &rig, Some(&anim))?;
+    facecap_io::gltf_io::write_glb(a.out.join("transfer.glb"), &rig, Some(&anim))?;
     // Parameters CSV: target pose, target identity, source expression.
     let tstates: Vec<Option<FitState>> = frames
         .iter()
@@ -140,8 +140,8 @@ pub fn run(a: TransferArgs) -> anyhow::Result<std::process::ExitCode> {
         for (i, f) in frames.iter().enumerate() {
             let pts = model.generate_points(&f.w_id, &f.w_exp)?;
             let index = src.records.get(i).map_or(i as u64, |r| r.frame);
-            facecap_tensor::obj::write_obj(
-                &facecap_pipeline::outputs::obj_path(&a.out, index),
+            facecap_io::obj::write_obj_positions(
+                facecap_pipeline::outputs::obj_path(&a.out, index),
                 &pts,
                 &model.triangles,
             )?;
@@ -248,14 +248,14 @@ fn reanimate(
             let s = open_source(&a.source, &SourceOptions::default())?;
             s.info().fps
         };
-        let ffmpeg = facecap_core::video::ffmpeg::locate_ffmpeg(None)?;
+        let ffmpeg = facecap_io::video::ffmpeg::locate_ffmpeg(None)?;
         let tmp_video = facecap_core::atomic::temp_path_for(video);
         let st = std::process::Command::new(ffmpeg)
             .args(["-nostdin", "-y", "-loglevel", "error", "-framerate"])
             .arg(format!("{fps}"))
             .args(["-protocol_whitelist", "file"])
             .arg("-i")
-            .arg(facecap_core::video::ffmpeg::file_url(&dir.join("frame_%05d.png")))
+            .arg(facecap_io::video::ffmpeg::file_url(&dir.join("frame_%05d.png")))
             .args([
                 "-c:v",
                 "libx264",
@@ -268,7 +268,7 @@ fn reanimate(
             // video under it, and the output name is a `file:` URL (never a protocol or
             // an option).
             .args(["-f", "mp4"])
-            .arg(facecap_core::video::ffmpeg::file_url(&tmp_video))
+            .arg(facecap_io::video::ffmpeg::file_url(&tmp_video))
             .stdin(std::process::Stdio::null())
             .status()
             .context("running ffmpeg")?;

@@ -21,7 +21,9 @@
 
 use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
-use nalgebra::{DMatrix, DVector, Point3, Vector3};
+use facecap_geom::delaunay::delaunay;
+use facecap_geom::tps::Tps;
+use nalgebra::{Point3, Vector3};
 
 /// 3D mean face, iBUG-68 order, cm (see module docs).
 pub const MEAN_FACE_68_CM: [[f64; 3]; 68] = [
@@ -248,129 +250,6 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
         _ => {}
     }
     d
-}
-
-/// Thin-plate spline `R^2 -> R` through the 68 landmarks' (x, y).
-struct Tps {
-    centres: Vec<(f64, f64)>,
-    lu: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
-}
-
-fn tps_kernel(r2: f64) -> f64 {
-    if r2 <= 0.0 {
-        0.0
-    } else {
-        0.5 * r2 * r2.ln()
-    }
-}
-
-impl Tps {
-    fn new(centres: Vec<(f64, f64)>) -> Option<Self> {
-        let n = centres.len();
-        let mut a = DMatrix::zeros(n + 3, n + 3);
-        for i in 0..n {
-            for j in 0..n {
-                let (dx, dy) = (centres[i].0 - centres[j].0, centres[i].1 - centres[j].1);
-                a[(i, j)] = tps_kernel(dx * dx + dy * dy);
-            }
-            a[(i, n)] = 1.0;
-            a[(i, n + 1)] = centres[i].0;
-            a[(i, n + 2)] = centres[i].1;
-            a[(n, i)] = 1.0;
-            a[(n + 1, i)] = centres[i].0;
-            a[(n + 2, i)] = centres[i].1;
-        }
-        let lu = a.lu();
-        lu.is_invertible().then_some(Tps { centres, lu })
-    }
-
-    /// Coefficients for values at the centres.
-    fn fit(&self, values: &[f64]) -> Option<DVector<f64>> {
-        let n = self.centres.len();
-        let mut b = DVector::zeros(n + 3);
-        for (i, v) in values.iter().enumerate() {
-            b[i] = *v;
-        }
-        self.lu.solve(&b)
-    }
-
-    fn eval(&self, coef: &DVector<f64>, x: f64, y: f64) -> f64 {
-        let n = self.centres.len();
-        let mut v = coef[n] + coef[n + 1] * x + coef[n + 2] * y;
-        for (i, c) in self.centres.iter().enumerate() {
-            let (dx, dy) = (x - c.0, y - c.1);
-            v += coef[i] * tps_kernel(dx * dx + dy * dy);
-        }
-        v
-    }
-}
-
-/// Bowyer-Watson Delaunay triangulation of 2D points (CCW triangles).
-pub(crate) fn delaunay(points: &[(f64, f64)]) -> Vec<[u32; 3]> {
-    let n = points.len();
-    let (mut minx, mut miny, mut maxx, mut maxy) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-    for p in points {
-        minx = minx.min(p.0);
-        miny = miny.min(p.1);
-        maxx = maxx.max(p.0);
-        maxy = maxy.max(p.1);
-    }
-    let size = (maxx - minx).max(maxy - miny) * 20.0;
-    let (cx, cy) = ((minx + maxx) / 2.0, (miny + maxy) / 2.0);
-    let mut pts = points.to_vec();
-    pts.push((cx - size, cy - size));
-    pts.push((cx + size, cy - size));
-    pts.push((cx, cy + size));
-    let mut tris: Vec<[usize; 3]> = vec![[n, n + 1, n + 2]];
-    let circum = |t: &[usize; 3], pts: &[(f64, f64)]| {
-        let (a, b, c) = (pts[t[0]], pts[t[1]], pts[t[2]]);
-        let d = 2.0 * (a.0 * (b.1 - c.1) + b.0 * (c.1 - a.1) + c.0 * (a.1 - b.1));
-        let a2 = a.0 * a.0 + a.1 * a.1;
-        let b2 = b.0 * b.0 + b.1 * b.1;
-        let c2 = c.0 * c.0 + c.1 * c.1;
-        let ux = (a2 * (b.1 - c.1) + b2 * (c.1 - a.1) + c2 * (a.1 - b.1)) / d;
-        let uy = (a2 * (c.0 - b.0) + b2 * (a.0 - c.0) + c2 * (b.0 - a.0)) / d;
-        (ux, uy, (a.0 - ux).powi(2) + (a.1 - uy).powi(2))
-    };
-    for i in 0..n {
-        let p = pts[i];
-        let mut bad = Vec::new();
-        let mut keep = Vec::new();
-        for t in tris.drain(..) {
-            let (ux, uy, r2) = circum(&t, &pts);
-            if (p.0 - ux).powi(2) + (p.1 - uy).powi(2) < r2 {
-                bad.push(t);
-            } else {
-                keep.push(t);
-            }
-        }
-        // Boundary edges of the cavity: edges of bad triangles not shared by another bad one.
-        let mut edges: Vec<(usize, usize)> = Vec::new();
-        for t in &bad {
-            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
-                let shared = bad.iter().filter(|u| u.contains(&a) && u.contains(&b)).count() > 1;
-                if !shared {
-                    edges.push((a, b));
-                }
-            }
-        }
-        tris = keep;
-        for (a, b) in edges {
-            tris.push([a, b, i]);
-        }
-    }
-    tris.into_iter()
-        .filter(|t| t.iter().all(|&v| v < n))
-        .map(|t| {
-            let (a, b, c) = (pts[t[0]], pts[t[1]], pts[t[2]]);
-            let cross = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
-            if cross >= 0.0 {
-                [t[0] as u32, t[1] as u32, t[2] as u32]
-            } else {
-                [t[0] as u32, t[2] as u32, t[1] as u32]
-            }
-        })
-        .collect()
 }
 
 /// The default rig: dense mesh with 16 morph targets, and its identity landmark map.

@@ -38,8 +38,8 @@ pub fn truth_path(video: &Path) -> Option<std::path::PathBuf> {
 /// The file cannot be read or is not a per-frame CSV with landmark columns.
 pub fn validate(video: &Path) -> anyhow::Result<()> {
     if let Some(path) = truth_path(video) {
-        let table = facecap_core::csv::read_frame_csv(&path)?;
-        facecap_core::csv::landmarks_from_table(&table)?;
+        let table = facecap_io::csv::read_frame_csv(&path)?;
+        facecap_io::csv::landmarks_from_table(&table)?;
     }
     Ok(())
 }
@@ -47,8 +47,8 @@ pub fn validate(video: &Path) -> anyhow::Result<()> {
 /// Errors against the truth file beside `video`; `None` when there is none.
 pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Result<Option<serde_json::Value>> {
     let Some(path) = truth_path(video) else { return Ok(None) };
-    let table = facecap_core::csv::read_frame_csv(&path)?;
-    let truth_lms = facecap_core::csv::landmarks_from_table(&table)?;
+    let table = facecap_io::csv::read_frame_csv(&path)?;
+    let truth_lms = facecap_io::csv::landmarks_from_table(&table)?;
     let (mut lm_sum, mut nme_sum, mut lm_n) = (0.0, 0.0, 0usize);
     for (t, e) in truth_lms.iter().zip(est) {
         if let (Some(tl), Some(el)) = (&t.landmarks, &e.landmarks) {

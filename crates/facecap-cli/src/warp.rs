@@ -74,7 +74,7 @@ mod tests {
     fn identity_and_translation() {
         let src = RgbImage::from_fn(40, 30, |x, y| Rgb([(x * 5) as u8, (y * 7) as u8, 9]));
         let pts = vec![(0.0, 0.0), (39.0, 0.0), (0.0, 29.0), (39.0, 29.0), (20.0, 15.0)];
-        let tris = crate::default_rig::delaunay(&pts);
+        let tris = facecap_geom::delaunay::delaunay(&pts);
         let mut out = RgbImage::new(1, 1);
         warp_piecewise_affine(&src, &pts, &pts, &tris, &mut out);
         assert_eq!(out, src);

@@ -19,7 +19,7 @@ fn make_y4m(dir: &Path) -> std::path::PathBuf {
         .map(|k| GrayImage::from_fn(33, 17, |x, y| Luma([16 + k * 10 + (x + y) as u8])))
         .collect();
     let mut bytes = Vec::new();
-    facecap_core::video::y4m::write_gray_y4m(&mut bytes, &frames, 25, 1, false).unwrap();
+    facecap_io::video::y4m::write_gray_y4m(&mut bytes, &frames, 25, 1, false).unwrap();
     let p = dir.join("clip.y4m");
     std::fs::write(&p, bytes).unwrap();
     p
@@ -63,7 +63,7 @@ fn info_on_shared_clip_matches_ffprobe_numbers() {
     let Some(p) = facecap_core::paths::shared_data_file("info_on_shared_clip", "videos/liveportrait_d9.mp4") else {
         return;
     };
-    if let Err(e) = facecap_core::video::ffmpeg::locate_ffmpeg(None) {
+    if let Err(e) = facecap_io::video::ffmpeg::locate_ffmpeg(None) {
         facecap_core::paths::skip(&format!("info_on_shared_clip: {e}"));
         return;
     }

@@ -81,7 +81,7 @@ fn track_writes_contractions_posed_mesh_and_report() {
     );
 
     // The animated rig and the report.
-    let glb = facecap_core::gltf_io::read_morph_mesh(dir.path().join("posed.glb")).unwrap();
+    let glb = facecap_io::gltf_io::read_morph_mesh(dir.path().join("posed.glb")).unwrap();
     assert_eq!(
         glb.targets.len(),
         53 + 11 + 1,

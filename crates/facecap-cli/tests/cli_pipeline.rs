@@ -501,7 +501,7 @@ fn closed_stdout_and_errors_follow_the_conventions() {
         .map(|k| image::GrayImage::from_fn(33, 17, |x, y| image::Luma([16 + k * 10 + (x + y) as u8])))
         .collect();
     let mut bytes = Vec::new();
-    facecap_core::video::y4m::write_gray_y4m(&mut bytes, &frames, 25, 1, false).unwrap();
+    facecap_io::video::y4m::write_gray_y4m(&mut bytes, &frames, 25, 1, false).unwrap();
     let clip = dir.path().join("clip.y4m");
     std::fs::write(&clip, bytes).unwrap();
     for args in [vec!["--help"], vec!["info", "--json", clip.to_str().unwrap()]] {

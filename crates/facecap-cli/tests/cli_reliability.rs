@@ -17,7 +17,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use facecap_core::csv::read_landmarks_csv;
+use facecap_io::csv::read_landmarks_csv;
 use serde_json::Value;
 
 fn facecap() -> Command {
@@ -91,10 +91,10 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     // An image folder frame_1..frame_12 (natural order) with frame_5 corrupt.
     let frames_dir = dir.join("frames");
     std::fs::create_dir_all(&frames_dir).unwrap();
-    let mut src = facecap_core::video::open_source(&clip, &Default::default()).unwrap();
-    let mut f = facecap_core::video::Frame::default();
+    let mut src = facecap_io::video::open_source(&clip, &Default::default()).unwrap();
+    let mut f = facecap_io::video::Frame::default();
     let mut k = 1;
-    while facecap_core::video::FrameSource::read_into(src.as_mut(), &mut f).unwrap() {
+    while facecap_io::video::FrameSource::read_into(src.as_mut(), &mut f).unwrap() {
         f.gray.save(frames_dir.join(format!("frame_{k}.png"))).unwrap();
         k += 1;
     }
@@ -179,7 +179,7 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     assert!(!b[4].success);
     // Before the corrupt frame both runs track the same images the same way; in byte
     // order index 1 would be frame_10.png (the Y4M's frame 9).
-    let dist = |x: &facecap_core::csv::LandmarkRecord, y: &facecap_core::csv::LandmarkRecord| {
+    let dist = |x: &facecap_io::csv::LandmarkRecord, y: &facecap_io::csv::LandmarkRecord| {
         let (l, m) = (x.landmarks.as_ref().unwrap(), y.landmarks.as_ref().unwrap());
         l.points
             .iter()
@@ -258,7 +258,7 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     assert!(!succ[3] && !succ[7], "{succ:?}");
     let n_ok = succ.iter().filter(|&&x| x).count();
     assert!(n_ok >= 9, "{succ:?}");
-    let (_, anim) = facecap_core::gltf_io::read_morph_file(solved.join("animation.glb")).unwrap();
+    let (_, anim) = facecap_io::gltf_io::read_morph_file(solved.join("animation.glb")).unwrap();
     assert_eq!(anim.unwrap().times_s.len(), n_ok, "one keyframe per solved frame");
 }
 
@@ -274,7 +274,7 @@ fn a_clip_without_a_face_is_not_a_neutral_take() {
         .map(|k| image::GrayImage::from_pixel(320, 240, image::Luma([90 + k as u8])))
         .collect();
     let mut f = std::fs::File::create(&clip).unwrap();
-    facecap_core::video::y4m::write_gray_y4m(&mut f, &frames, 25, 1, false).unwrap();
+    facecap_io::video::y4m::write_gray_y4m(&mut f, &frames, 25, 1, false).unwrap();
     drop(f);
     let out = tmp.path().join("out");
     let o = run(facecap().args(["capture", "--quiet", "--out"]).arg(&out).arg(&clip));
@@ -309,8 +309,8 @@ fn landmarks_names_damage_boxes_and_models() {
         dir.join("b/img.png"),
     ]));
     assert!(o.status.success(), "{}", stderr(&o));
-    let a = facecap_core::formats::pts::read_pts(out.join("img_0.pts")).unwrap();
-    let b = facecap_core::formats::pts::read_pts(out.join("img-2_0.pts")).unwrap();
+    let a = facecap_io::formats::pts::read_pts(out.join("img_0.pts")).unwrap();
+    let b = facecap_io::formats::pts::read_pts(out.join("img-2_0.pts")).unwrap();
     assert_eq!(a, b, "the same photo twice gives the same points under two names");
     let csv = std::fs::read_to_string(out.join("summary.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().collect();

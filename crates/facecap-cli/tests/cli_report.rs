@@ -129,7 +129,7 @@ fn report_loads_and_its_video_plays_in_headless_chromium() {
         eprintln!("SKIP: {T}: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)");
         return;
     };
-    if facecap_core::video::ffmpeg::locate_ffmpeg(None).is_err() {
+    if facecap_io::video::ffmpeg::locate_ffmpeg(None).is_err() {
         eprintln!("SKIP: {T}: no ffmpeg");
         return;
     }

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_core::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow};
 use facecap_core::landmarks::Landmarks68;
+use facecap_io::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow};
 use nalgebra::{Point2, Point3, Vector3};
 
 fn facecap() -> Command {
@@ -190,7 +190,8 @@ fn build_generate_fit_transfer_on_synthetic_data() {
     let exps = ["neutral", "open", "smile", "brows"];
     for i in 0..4 {
         for (e, name) in exps.iter().enumerate() {
-            facecap_tensor::obj::write_obj(&db.join(format!("id{i}_{name}.obj")), &face(i, e), &triangles()).unwrap();
+            facecap_io::obj::write_obj_positions(db.join(format!("id{i}_{name}.obj")), &face(i, e), &triangles())
+                .unwrap();
         }
     }
     let model = root.join("m.fctensor");
@@ -212,7 +213,7 @@ fn build_generate_fit_transfer_on_synthetic_data() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let geo = facecap_tensor::obj::read_obj(&gen).unwrap();
+    let geo = facecap_io::obj::read_obj_positions(&gen, None).unwrap();
     assert_eq!(geo.positions.len(), GRID * GRID);
     // Landmark map and two clips.
     let map: Vec<u32> = template().iter().map(|&(x, y)| nearest_vertex(x, y)).collect();

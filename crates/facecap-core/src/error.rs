@@ -105,6 +105,17 @@ impl Error {
     }
 }
 
+impl Error {
+    /// Builds a [`Error::DimensionMismatch`].
+    pub fn dim(what: impl Into<String>, expected: usize, got: usize) -> Self {
+        Error::DimensionMismatch {
+            what: what.into(),
+            expected,
+            got,
+        }
+    }
+}
+
 /// Returns an error naming `name` unless `value` is finite.
 pub fn ensure_finite(name: &'static str, value: f64) -> Result<f64> {
     if value.is_finite() {

@@ -2,12 +2,16 @@
 //!
 //! Shared vocabulary of the facecap workspace: the iBUG 68-point landmark scheme,
 //! face boxes, meshes with morph targets, pinhole cameras, rigid poses that name the
-//! frames they map between, similarity alignment, per-frame CSV output, atomic file
-//! writing, video/image frame sources, and the bridge between nalgebra and ndarray.
+//! frames they map between, the one error type, atomic file writing, model-cache and
+//! shared-data paths, model checksums, landmark-to-vertex maps, and the bridge between
+//! nalgebra and ndarray.
 //!
-//! Algorithm crates (`facecap-landmarks`, `facecap-solve`, `facecap-tensor`,
-//! `facecap-muscle`) depend on this crate and never on each other; only
-//! `facecap-cli` composes them.
+//! File formats (video, images, glTF, OBJ, CSV, landmark files) live in `facecap-io`,
+//! shared geometry and small dense solvers (PnP, alignment, Cholesky, box QP, NNLS,
+//! Delaunay) in `facecap-geom`; both build on this crate. Algorithm crates
+//! (`facecap-landmarks`, `facecap-solve`, `facecap-tensor`, `facecap-muscle`,
+//! `facecap-mesh`) depend on these three and never on each other; only
+//! `facecap-pipeline` composes them.
 //!
 //! ## Coordinate conventions
 //! * **Pixels**: `(x, y)` with the *centre* of the top-left pixel at `(0, 0)`,
@@ -27,19 +31,10 @@ pub mod error;
 pub mod landmarks;
 
 pub use error::{Error, Result};
-pub mod align;
 pub mod atomic;
 pub mod bridge;
 pub mod camera;
 pub mod checksum;
-pub mod csv;
-pub mod epnp;
-pub mod formats;
-pub mod gltf_io;
-pub mod image_io;
 pub mod landmark_map;
 pub mod mesh;
-pub mod obj;
 pub mod paths;
-pub mod pnp;
-pub mod video;

@@ -10,9 +10,9 @@
 use std::path::Path;
 use std::process::Command;
 
-use facecap_core::formats::pts::read_pts;
 use facecap_core::landmarks::{Landmarks68, Rect};
 use facecap_core::paths::{model_file_or_skip, shared_data_file, DLIB_68_MODEL};
+use facecap_io::formats::pts::read_pts;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
 use image::GrayImage;
 use nalgebra::Point2;

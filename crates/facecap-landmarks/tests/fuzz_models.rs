@@ -4,7 +4,7 @@
 //! a panic or an abort. Inputs tried per target are the case counts below.
 
 mod ert_common;
-#[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
+#[path = "../../facecap-io/tests/fuzz_common/mod.rs"]
 mod fuzz_common;
 
 use facecap_landmarks::detect::HogModel;

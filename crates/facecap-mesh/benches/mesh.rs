@@ -6,7 +6,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use facecap_core::video::{open_source, Frame, SourceOptions};
+use facecap_io::video::{open_source, Frame, SourceOptions};
 use facecap_mesh::tflite::Interpreter;
 use facecap_mesh::{FaceMesh, MeshModels, MeshParams, MeshTracker, RgbView};
 use facecap_mesh::{FACE_DETECTOR_MODEL, FACE_LANDMARKS_MODEL};

@@ -3,7 +3,7 @@
 //! read:
 //!
 //!     cargo run --release -p facecap-mesh --example profile_tracker [clip] [frames]
-use facecap_core::video::{open_source, Frame, SourceOptions};
+use facecap_io::video::{open_source, Frame, SourceOptions};
 use facecap_mesh::{FaceMesh, MeshModels, MeshParams, MeshStatus, MeshTracker, RgbView};
 
 /// CPU time of this thread in seconds (Linux `/proc/thread-self/schedstat`).

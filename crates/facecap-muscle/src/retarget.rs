@@ -89,7 +89,7 @@ pub fn retarget_via_landmarks(
     if src.len() < 4 {
         return Err(Error::invalid("landmarks mapped on both meshes", src.len(), ">= 4"));
     }
-    let sim = facecap_core::align::umeyama3(&src, &dst, None, true)?;
+    let sim = facecap_geom::align::umeyama3(&src, &dst, None, true)?;
     let resid: Vec<Vector3<f64>> = src.iter().zip(&dst).map(|(a, b)| b - sim.apply(a)).collect();
     let warped_lm: Vec<Point3<f64>> = src.iter().map(|a| sim.apply(a)).collect();
     let warp = |p: &Point3<f64>| -> Point3<f64> {

@@ -51,7 +51,8 @@ use nalgebra::{Matrix2x3, Point2, Point3, Rotation3, Unit, Vector2, Vector3};
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_core::pnp::{refine_pose, solve_pnp, PnpParams};
+use facecap_geom::golden::golden_section;
+use facecap_geom::pnp::{refine_pose, solve_pnp, PnpParams};
 
 use crate::error::{Error, Result};
 use crate::rig::MuscleRig;
@@ -911,37 +912,4 @@ impl MuscleTracker {
         }
         iters
     }
-}
-
-/// Golden-section minimisation of `f` on `[a, b]` to bracket width `tol`.
-pub fn golden_section(f: impl Fn(f64) -> f64, mut a: f64, mut b: f64, tol: f64) -> f64 {
-    const INV_PHI: f64 = 0.618_033_988_749_894_8;
-    let mut x1 = b - INV_PHI * (b - a);
-    let mut x2 = a + INV_PHI * (b - a);
-    let (mut f1, mut f2) = (f(x1), f(x2));
-    while (b - a).abs() > tol {
-        if f1 <= f2 {
-            b = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = b - INV_PHI * (b - a);
-            f1 = f(x1);
-        } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = a + INV_PHI * (b - a);
-            f2 = f(x2);
-        }
-    }
-    // The bounds themselves are candidates (the minimum is often at theta = 0).
-    let mid = 0.5 * (a + b);
-    let mut best = (mid, f(mid));
-    for x in [a, b] {
-        let v = f(x);
-        if v < best.1 {
-            best = (x, v);
-        }
-    }
-    best.0
 }

@@ -2,7 +2,7 @@
 //! Property-based fuzzing of the muscle-set JSON parser: every mutated file parses or is
 //! an error, never a panic. Inputs tried: the case count below.
 
-#[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
+#[path = "../../facecap-io/tests/fuzz_common/mod.rs"]
 mod fuzz_common;
 
 use facecap_muscle::set::MuscleSet;

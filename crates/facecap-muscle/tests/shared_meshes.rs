@@ -73,7 +73,7 @@ fn default_set_on_ict() {
     ) else {
         return;
     };
-    let mm = facecap_core::gltf_io::read_morph_mesh(&glb).unwrap();
+    let mm = facecap_io::gltf_io::read_morph_mesh(&glb).unwrap();
     let map = LandmarkMap::from_json_file(&mp).unwrap();
     check_mesh("ICT", &mm.base, &map);
 }
@@ -86,7 +86,7 @@ fn default_set_on_sfm() {
     ) else {
         return;
     };
-    let mm = facecap_core::gltf_io::read_morph_mesh(&glb).unwrap();
+    let mm = facecap_io::gltf_io::read_morph_mesh(&glb).unwrap();
     let map = LandmarkMap::from_json_file(&mp).unwrap();
     assert_eq!(mm.base.num_vertices(), 3448);
     check_mesh("SFM", &mm.base, &map);
@@ -114,7 +114,7 @@ fn default_set_on_james_scan() {
     ) else {
         return;
     };
-    let mesh = facecap_core::obj::read_obj(&obj).unwrap();
+    let mesh = facecap_io::obj::read_obj(&obj).unwrap();
     let p = pos(&mesh);
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(lj).unwrap()).unwrap();
     let pts = v["groups"]["LJSON"]["landmarks"]["points"].as_array().unwrap();

@@ -6,7 +6,7 @@
 //! last frame when a calibration needs the whole clip).
 //!
 //! Head pose: `exact3d` solves it with the weights. For the 2D solvers (`exact`,
-//! `bobyqa`, `region`, `pca`), a perspective PnP pose ([`facecap_core::pnp::solve_pnp`],
+//! `bobyqa`, `region`, `pca`), a perspective PnP pose ([`facecap_geom::pnp::solve_pnp`],
 //! warm-started from the previous frame) of the rig's landmarks *posed with the solved
 //! weights* is fitted to the tracked landmarks beside them, so `pose.csv` has a pose with
 //! every solver.
@@ -15,9 +15,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use facecap_core::camera::{pose_row, Intrinsics, ModelToCamera};
-use facecap_core::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
-use facecap_core::pnp::{solve_pnp, PnpParams};
+use facecap_geom::pnp::{solve_pnp, PnpParams};
+use facecap_io::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
 use facecap_solve::{
     AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,

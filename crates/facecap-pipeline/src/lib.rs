@@ -26,7 +26,7 @@
 //! [`Queues::LIVE`]) into a [`LiveSink`] that solves each frame with the same
 //! [`ExpressionSink`] and sends it at once (OSC/VMC, Live Link Face, JSON; [`net`]).
 //!
-//! **Adding a source**: implement [`facecap_core::video::FrameSource`] (a camera, a
+//! **Adding a source**: implement [`facecap_io::video::FrameSource`] (a camera, a
 //! stream) and pass it to [`VideoTracker::run`]. **Adding a sink**: implement
 //! [`Sink`] (`frame` per tracked frame, in order; `end` after the last), and give it to
 //! `run` beside the others; say in [`Sink::images`] whether it needs the grey frames.
@@ -45,7 +45,6 @@ pub mod batch;
 pub mod error;
 pub mod expression;
 pub mod live;
-pub mod livelink;
 pub mod muscle;
 pub mod net;
 pub mod openface;

@@ -2,7 +2,7 @@
 //! stdin, taken **newest first**.
 //!
 //! * [`Y4mStream`] reads a YUV4MPEG2 stream from any reader (stdin, a pipe from ffmpeg)
-//!   with the grey levels of every other source ([`facecap_core::video::Luma::Full`]:
+//!   with the grey levels of every other source ([`facecap_io::video::Luma::Full`]:
 //!   limited-range luma expanded to 0..255), so a clip gives the same landmarks live
 //!   and through `capture`.
 //! * [`RawStream`] reads raw frames of a given size and layout (`gray`, `yuv420p`,
@@ -27,9 +27,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
-use facecap_core::video::y4m::{parse_header, Y4mHeader, MAGIC};
-use facecap_core::video::yuv::{apply_lut, limited_to_full_luma_lut, ColorRange};
-use facecap_core::video::{Frame, FrameSource, SourceKind, VideoInfo};
+use facecap_io::video::y4m::{parse_header, Y4mHeader, MAGIC};
+use facecap_io::video::yuv::{apply_lut, limited_to_full_luma_lut, ColorRange};
+use facecap_io::video::{Frame, FrameSource, SourceKind, VideoInfo};
 
 use crate::error::{Error, Result};
 
@@ -149,7 +149,7 @@ pub struct RawInput {
 }
 
 /// Opens `input` as a frame source (module docs); `raw` reads stdin as raw frames. `ffmpeg` is the binary to run for
-/// cameras, URLs and files (`None`: [`facecap_core::video::ffmpeg::locate_ffmpeg`]).
+/// cameras, URLs and files (`None`: [`facecap_io::video::ffmpeg::locate_ffmpeg`]).
 ///
 /// # Errors
 /// A file that does not exist, ffmpeg missing or failing to start, or a stream whose
@@ -172,7 +172,7 @@ pub fn open_live(
         };
         return Ok((source, None));
     };
-    let ffmpeg = facecap_core::video::ffmpeg::locate_ffmpeg(ffmpeg)?;
+    let ffmpeg = facecap_io::video::ffmpeg::locate_ffmpeg(ffmpeg)?;
     let name = match input {
         LiveInput::Camera { device, .. } => device.clone(),
         LiveInput::Url(u) => PathBuf::from(u),

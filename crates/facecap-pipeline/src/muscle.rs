@@ -4,9 +4,9 @@
 use std::path::Path;
 
 use facecap_core::camera::Intrinsics;
-use facecap_core::csv::{FrameCsvWriter, FrameRow};
 use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::mesh::MorphMesh;
+use facecap_io::csv::{FrameCsvWriter, FrameRow};
 use facecap_muscle::rig::MuscleRig;
 use facecap_muscle::set::MuscleSet;
 use facecap_muscle::track::{

@@ -4,9 +4,9 @@
 //!
 //! ## Values
 //! The same numbers as the recorded files: the weights of `weights.csv` and, where the
-//! rig's shape names map onto ARKit's ([`crate::livelink::mapping`]), the ARKit curves
+//! rig's shape names map onto ARKit's ([`facecap_io::livelink::mapping`]), the ARKit curves
 //! of `livelink.csv` (split `_L`/`_R` halves of an unsided shape averaged), head yaw,
-//! pitch and roll as in `livelink.csv` ([`crate::livelink::head_angles`]). Frames
+//! pitch and roll as in `livelink.csv` ([`facecap_io::livelink::head_angles`]). Frames
 //! without a face send no OSC or Live Link packet (receivers hold the last pose); the
 //! JSON line says `"success": false`.
 //!
@@ -56,8 +56,8 @@ use rosc::{OscBundle, OscMessage, OscPacket, OscTime, OscType};
 use crate::error::{BoxError, Error, Result};
 use crate::expression::{ExpressionResult, ExpressionSink, SolvedFrame};
 use crate::live::ArrivalLog;
-use crate::livelink::{head_angles, mapping, LIVE_LINK_POSE, LIVE_LINK_SHAPES};
 use crate::sink::{FrameImages, Sink, TrackedFace};
+use facecap_io::livelink::{head_angles, mapping, LIVE_LINK_POSE, LIVE_LINK_SHAPES};
 
 /// The 61 curves of a Live Link Face packet, in Unreal's `EARFaceBlendShape` order.
 pub const PACKET_CURVES: [&str; 61] = [

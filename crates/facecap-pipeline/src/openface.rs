@@ -33,8 +33,8 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use facecap_core::camera::{euler_rx_ry_rz, head_rotation, ModelToCamera};
-use facecap_core::csv::LandmarkRecord;
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_io::csv::LandmarkRecord;
 use facecap_solve::BlendshapeRig;
 
 use crate::error::{Error, Result};

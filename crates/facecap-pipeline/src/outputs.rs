@@ -22,14 +22,14 @@
 use std::path::Path;
 
 use facecap_core::camera::{head_rotation, ModelToCamera, FACING_CAMERA};
-use facecap_core::gltf_io::{write_glb_animated, AnimationExtras, MorphAnimation, NodeTrack};
 use facecap_core::mesh::MorphMesh;
+use facecap_io::gltf_io::{write_glb_animated, AnimationExtras, MorphAnimation, NodeTrack};
 use facecap_solve::BlendshapeRig;
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
 use crate::error::{Error, Result};
 use crate::expression::{ExpressionResult, SolvedFrame};
-use crate::livelink::{self, LiveLinkRow};
+use facecap_io::livelink::{self, LiveLinkRow};
 
 /// Coordinate frame of the OBJ meshes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -191,7 +191,7 @@ pub fn write_solve_outputs(
             }
             m.positions.clone_from(&posed);
             m.compute_normals();
-            facecap_core::obj::write_obj(obj_path(out_dir, f.index), &m)?;
+            facecap_io::obj::write_obj(obj_path(out_dir, f.index), &m)?;
             written.objs += 1;
         }
     }

@@ -23,8 +23,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use facecap_core::camera::Intrinsics;
-use facecap_core::video::encode::{EncoderParams, FfmpegEncoder};
-use facecap_core::video::{open_source, Frame, SourceOptions};
+use facecap_io::video::encode::{EncoderParams, FfmpegEncoder};
+use facecap_io::video::{open_source, Frame, SourceOptions};
 use image::{Rgb, RgbImage};
 use nalgebra::Point2;
 use rayon::prelude::*;

@@ -3,8 +3,8 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use facecap_core::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow, LandmarkRecord};
 use facecap_core::landmarks::NUM_LANDMARKS;
+use facecap_io::csv::{landmark_columns, landmark_values, FrameCsvWriter, FrameRow, LandmarkRecord};
 use image::GrayImage;
 
 use crate::error::Result;

@@ -11,8 +11,8 @@
 use std::path::Path;
 
 use facecap_core::camera::{pose_row, Intrinsics};
-use facecap_core::csv::{FrameCsvWriter, FrameRow, LandmarkRecord, POSE_COLUMNS};
 use facecap_core::landmark_map::LandmarkMap;
+use facecap_io::csv::{FrameCsvWriter, FrameRow, LandmarkRecord, POSE_COLUMNS};
 use facecap_tensor::fit::{FitInput, FitParams, FitState, FitWorkspace, Fitter};
 use facecap_tensor::model::TensorModel;
 use nalgebra::Point2;

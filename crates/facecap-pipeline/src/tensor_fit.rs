@@ -8,9 +8,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use facecap_core::camera::Intrinsics;
-use facecap_core::csv::LandmarkRecord;
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_core::video::{Frame, FrameSource};
+use facecap_io::csv::LandmarkRecord;
+use facecap_io::video::{Frame, FrameSource};
 use facecap_landmarks::lk::{LkParams, LkWorkspace, PyramidLk, TrackStatus};
 use facecap_tensor::fit::{FitParams, FitState};
 use facecap_tensor::model::TensorModel;

@@ -14,9 +14,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use facecap_core::csv::LandmarkRecord;
 use facecap_core::landmarks::Landmarks68;
-use facecap_core::video::{open_source, Frame, FrameSource, SourceOptions, VideoInfo};
+use facecap_io::csv::LandmarkRecord;
+use facecap_io::video::{open_source, Frame, FrameSource, SourceOptions, VideoInfo};
 use facecap_landmarks::detect::FaceDetector;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
 use facecap_landmarks::gaze::{IrisEstimator, IrisFrame, IrisParams};
@@ -265,7 +265,7 @@ impl RunReport {
 /// (0 = ffmpeg's choice; one per video costs the least CPU per frame).
 ///
 /// # Errors
-/// As [`facecap_core::video::open_source`].
+/// As [`facecap_io::video::open_source`].
 pub fn open_video(path: &Path, decode_threads: u32) -> Result<Box<dyn FrameSource>> {
     open_video_with(path, decode_threads, true)
 }
@@ -276,7 +276,7 @@ pub fn open_video(path: &Path, decode_threads: u32) -> Result<Box<dyn FrameSourc
 /// dropped frame as a decode error of its own, so salvage mode marks exactly those.
 ///
 /// # Errors
-/// As [`facecap_core::video::open_source`].
+/// As [`facecap_io::video::open_source`].
 pub fn open_video_with(path: &Path, decode_threads: u32, strict: bool) -> Result<Box<dyn FrameSource>> {
     open_video_rgb(path, decode_threads, strict, false)
 }

@@ -5,8 +5,8 @@
 
 use std::sync::atomic::AtomicBool;
 
-use facecap_core::csv::LandmarkRecord;
 use facecap_core::landmarks::Landmarks68;
+use facecap_io::csv::LandmarkRecord;
 use facecap_pipeline::{FrameImages, RunControl, Sink, TrackedFace, TrackerPolicy, VideoTracker};
 use image::{GrayImage, Luma};
 
@@ -59,7 +59,7 @@ fn clip(dir: &std::path::Path, n: u8) -> std::path::PathBuf {
         .map(|k| GrayImage::from_fn(64, 48, |x, y| Luma([(x * 3 + y + u32::from(k) * 5) as u8])))
         .collect();
     let mut bytes = Vec::new();
-    facecap_core::video::y4m::write_gray_y4m(&mut bytes, &frames, 25, 1, false).unwrap();
+    facecap_io::video::y4m::write_gray_y4m(&mut bytes, &frames, 25, 1, false).unwrap();
     let p = dir.join("clip.y4m");
     std::fs::write(&p, bytes).unwrap();
     p

@@ -11,8 +11,8 @@
 
 mod common;
 
+use facecap_geom::qp::{qp_cost, solve_box_qp, QpOptions, QpWorkspace};
 use facecap_solve::bobyqa::{Bobyqa, BobyqaRun};
-use facecap_solve::qp::{qp_cost, solve_box_qp, QpOptions, QpWorkspace};
 use rand::{Rng, SeedableRng};
 
 fn main() {

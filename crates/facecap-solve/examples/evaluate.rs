@@ -150,7 +150,7 @@ fn real(rig: &BlendshapeRig, rig_name: &str, methods: &[Method]) {
     println!("|---|---|---|---|---|---|");
     let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../testdata/solve");
     for (clip, w, h) in [("liveportrait_d3", 512, 512), ("liveportrait_d9", 512, 480)] {
-        let recs = facecap_core::csv::read_landmarks_csv(format!("{dir}/landmarks_{clip}.csv")).unwrap();
+        let recs = facecap_io::csv::read_landmarks_csv(format!("{dir}/landmarks_{clip}.csv")).unwrap();
         let frames: Vec<Landmarks68> = recs.iter().filter_map(|r| r.landmarks.clone()).collect();
         let cam = Intrinsics::default_for_frame(w, h).unwrap();
         let still = still_stretch(&frames, 10);

@@ -345,9 +345,7 @@ impl Shapes2d {
     pub fn save(&self, path: &Path) -> Result<()> {
         self.validate()?;
         let text = self.to_json_string()?;
-        let tmp = path.with_extension("json.tmp");
-        std::fs::write(&tmp, text).map_err(|e| facecap_core::Error::io(&tmp, e))?;
-        std::fs::rename(&tmp, path).map_err(|e| facecap_core::Error::io(path, e))?;
+        facecap_core::atomic::write_atomic(path, |w| w.write_all(text.as_bytes()))?;
         Ok(())
     }
 }

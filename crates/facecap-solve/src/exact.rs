@@ -11,13 +11,13 @@
 //! ```
 //!
 //! with `D` the `136 x n` delta matrix and `b' = sim^-1(o) - neutral`. Per frame only `D b'`
-//! (136 n flops) and the box QP ([`crate::qp`], exact active-set method, warm-started from the
+//! (136 n flops) and the box QP ([`facecap_geom::qp`], exact active-set method, warm-started from the
 //! previous frame's weights and active set) are computed. The alignment is then refitted on the
 //! posed shape and the QP re-solved (`alignments` passes).
 //!
 //! Per-frame savings (same result): with `mu = 0`, `H = s^2 (2 G + ridge I)`, so the QP's
 //! Cholesky factor of the free block is carried over from the previous pass or frame and
-//! rescaled by the ratio of the `s^2` instead of recomputed ([`crate::qp::solve_box_qp_reuse`];
+//! rescaled by the ratio of the `s^2` instead of recomputed ([`facecap_geom::qp::solve_box_qp_reuse`];
 //! the workspace remembers which solver and `s^2` it belongs to). The first alignment reuses the
 //! posed shape of the previous weights kept in the workspace. The reported cost is
 //! `q(e) - (ridge s^2 / 2) |e|^2 + s^2 b'^T b' + mu |e_prev|^2` from the QP value, O(n).
@@ -34,10 +34,10 @@ use nalgebra::Point2;
 
 use crate::basis::{flatten_landmarks, Basis2d};
 use crate::error::{check_count, check_range, Result};
-use crate::qp::{solve_box_qp_reuse, QpOptions, QpWorkspace};
 use crate::solver::{
     check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason,
 };
+use facecap_geom::qp::{solve_box_qp_reuse, QpOptions, QpWorkspace};
 
 /// Relative ridge added to the QP Hessian's diagonal so that shapes invisible at the landmarks
 /// (e.g. eye-gaze shapes) keep the reduced Hessian positive definite. Negligible otherwise.

@@ -18,7 +18,7 @@
 //!    (left-multiplied rotation increment `exp([w]x) R`, `t + dt`), weights fixed.
 //! 3. Bounded QP: the projection is linearised at the current pose and weights,
 //!    `r(z) = r_0 + A_p dp + A_e (e' - e)`, and the convex box QP in `z = (dp, e')` (pose increments
-//!    unbounded, `e' in [0,1]^n`) is solved exactly ([`crate::qp`]). With `joint = false` only `e'`
+//!    unbounded, `e' in [0,1]^n`) is solved exactly ([`facecap_geom::qp`]). With `joint = false` only `e'`
 //!    is free (pure alternation). The step is accepted with a backtracking search on `F`.
 //! 4. Repeat 2-3 until the relative decrease of `F` is below `tol` (reported as
 //!    [`StopReason::SmallDecrease`]) or `max_alternations` is reached ([`StopReason::MaxIterations`]).
@@ -39,9 +39,9 @@ use nalgebra::{
 };
 
 use crate::error::{check_count, check_range, Error, Result};
-use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
 use crate::rig::BlendshapeRig;
 use crate::solver::{check_io, ExpressionSolver, ObjectiveParams, Report, Solution, SolveState, StopReason};
+use facecap_geom::qp::{solve_box_qp, QpOptions, QpWorkspace};
 
 /// Parameters of [`Exact3dSolver`] (table in the module docs).
 #[derive(Debug, Clone, Copy, PartialEq)]

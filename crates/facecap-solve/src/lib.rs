@@ -46,7 +46,6 @@ pub mod exact;
 pub mod exact3d;
 pub mod observability;
 pub mod pca;
-pub mod qp;
 pub mod region;
 pub mod rig;
 pub mod solver;

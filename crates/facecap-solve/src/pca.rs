@@ -26,10 +26,10 @@ use nalgebra::DMatrix;
 
 use crate::basis::Basis2d;
 use crate::error::{check_range, Error, Result};
-use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
 use crate::solver::{
     check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason, COORDS,
 };
+use facecap_geom::qp::{solve_box_qp, QpOptions, QpWorkspace};
 
 /// Parameters of [`PcaSolver`].
 #[derive(Debug, Clone, Copy, PartialEq)]

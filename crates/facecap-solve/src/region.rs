@@ -26,10 +26,10 @@ use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 
 use crate::basis::Basis2d;
 use crate::error::{check_count, Error, Result};
-use crate::qp::{solve_box_qp, QpOptions, QpWorkspace};
 use crate::solver::{
     check_io, ExpressionSolver, Frame2d, Model2d, ObjectiveParams, Report, Solution, SolveState, StopReason, COORDS,
 };
+use facecap_geom::qp::{solve_box_qp, QpOptions, QpWorkspace};
 
 /// One region: its landmarks and the shapes solved on them.
 #[derive(Debug, Clone, PartialEq, Eq)]

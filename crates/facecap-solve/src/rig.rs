@@ -154,10 +154,10 @@ impl BlendshapeRig {
         Ok(rig)
     }
 
-    /// Reads a glTF/GLB with morph targets (via `facecap_core::gltf_io`) and a landmark map
+    /// Reads a glTF/GLB with morph targets (via `facecap_io::gltf_io`) and a landmark map
     /// JSON file (`vertex_by_ibug_0based`, `vertex_by_ibug_1based` or a plain list of 68 ids).
     pub fn from_gltf(rig: &Path, landmark_map: &Path) -> Result<Self> {
-        let mesh = facecap_core::gltf_io::read_morph_mesh(rig)?;
+        let mesh = facecap_io::gltf_io::read_morph_mesh(rig)?;
         let map = LandmarkMap::from_json_file(landmark_map)?;
         Self::from_morph_mesh(mesh, &map, &rig.display().to_string())
     }
@@ -407,78 +407,16 @@ fn synthetic_face() -> Array2<f64> {
     p
 }
 
-/// Minimal Wavefront OBJ reader: `v` positions (optionally only the first `max_vertices`) and
-/// `f` faces (fan-triangulated; faces touching a dropped vertex are skipped). Other statements
-/// are ignored.
-pub fn read_obj(path: &Path, max_vertices: Option<usize>) -> Result<Mesh> {
-    let text = std::fs::read_to_string(path).map_err(|e| facecap_core::Error::io(path, e))?;
-    let perr = |line: usize, reason: String| Error::Parse {
-        format: "Wavefront OBJ",
-        path: path.to_path_buf(),
-        reason: format!("line {line}: {reason}"),
-    };
-    let mut positions = Vec::new();
-    let mut all_v = 0usize;
-    let mut faces: Vec<(usize, Vec<i64>)> = Vec::new();
-    for (ln, line) in text.lines().enumerate() {
-        let mut it = line.split_whitespace();
-        match it.next() {
-            Some("v") => {
-                let mut c = [0f32; 3];
-                for x in c.iter_mut() {
-                    let s = it
-                        .next()
-                        .ok_or_else(|| perr(ln + 1, "vertex with fewer than 3 coordinates".into()))?;
-                    *x = s.parse().map_err(|_| perr(ln + 1, format!("bad number {s:?}")))?;
-                    if !x.is_finite() {
-                        return Err(perr(ln + 1, "non-finite coordinate".into()));
-                    }
-                }
-                all_v += 1;
-                if max_vertices.map_or(true, |m| positions.len() < m) {
-                    positions.push(Point3::new(c[0], c[1], c[2]));
-                }
-            }
-            Some("f") => {
-                let mut idx = Vec::new();
-                for tok in it {
-                    let v = tok.split('/').next().unwrap_or("");
-                    let i: i64 = v.parse().map_err(|_| perr(ln + 1, format!("bad face index {tok:?}")))?;
-                    idx.push(i);
-                }
-                if idx.len() < 3 {
-                    return Err(perr(ln + 1, "face with fewer than 3 vertices".into()));
-                }
-                faces.push((ln + 1, idx));
-            }
-            _ => {}
-        }
+/// An OBJ's positions in file order (optionally only the first `max_vertices`) and its faces
+/// (faces touching a dropped vertex are skipped), through [`facecap_io::obj::read_obj_positions`].
+fn read_obj(path: &Path, max_vertices: Option<usize>) -> Result<Mesh> {
+    let mesh = facecap_io::obj::read_obj_positions(path, max_vertices)?;
+    if mesh.positions.is_empty() {
+        return Err(Error::Parse {
+            format: "Wavefront OBJ",
+            path: path.to_path_buf(),
+            reason: "line 0: no vertices".into(),
+        });
     }
-    let nv = positions.len();
-    let mut triangles = Vec::new();
-    for (ln, idx) in faces {
-        let mut r = Vec::with_capacity(idx.len());
-        for i in idx {
-            let a = if i > 0 { i - 1 } else { all_v as i64 + i };
-            if a < 0 || a as usize >= all_v {
-                return Err(perr(ln, format!("face index {i} out of range (1..={all_v})")));
-            }
-            r.push(a as usize);
-        }
-        if r.iter().any(|&a| a >= nv) {
-            continue;
-        }
-        for k in 1..r.len() - 1 {
-            triangles.push([r[0] as u32, r[k] as u32, r[k + 1] as u32]);
-        }
-    }
-    if positions.is_empty() {
-        return Err(perr(0, "no vertices".into()));
-    }
-    Ok(Mesh {
-        positions,
-        triangles,
-        normals: Vec::new(),
-        uvs: Vec::new(),
-    })
+    Ok(mesh)
 }

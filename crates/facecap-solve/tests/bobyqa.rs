@@ -2,8 +2,8 @@
 //! BOBYQA (the pinned `bobyqa` crate, two passes as in the seed) on standard bound-constrained
 //! problems with known optima, and against dlib's `find_min_bobyqa` on our problem (fixture).
 
+use facecap_geom::qp::{solve_box_qp, QpOptions, QpWorkspace};
 use facecap_solve::bobyqa_solver::bobyqa_two_pass;
-use facecap_solve::qp::{solve_box_qp, QpOptions, QpWorkspace};
 use facecap_solve::BobyqaParams;
 
 fn tight() -> BobyqaParams {
@@ -75,7 +75,7 @@ fn box_qp_matches_exact_solver() {
         }
     }
     let g: Vec<f64> = (0..n).map(|_| rng.random_range(-5.0..5.0)).collect();
-    let q = |x: &[f64]| facecap_solve::qp::qp_cost(&h, &g, x);
+    let q = |x: &[f64]| facecap_geom::qp::qp_cost(&h, &g, x);
     let mut xe = vec![0.0; n];
     solve_box_qp(
         &h,

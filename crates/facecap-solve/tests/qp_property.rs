@@ -1,7 +1,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The exact box-QP solver against the slow enumerating reference, on seeded random problems.
 
-use facecap_solve::qp::{
+use facecap_geom::qp::{
     active_set, projected_newton, qp_cost, reference_box_qp, solve_box_qp, solve_box_qp_reuse, QpOptions, QpWorkspace,
 };
 use rand::{Rng, SeedableRng};

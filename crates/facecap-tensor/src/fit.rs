@@ -26,7 +26,7 @@
 //!
 //! **One sweep** (thesis order: pose, expression, identity):
 //! 1. pose by PnP on the current model points: Levenberg-Marquardt on the perspective
-//!    reprojection error ([`crate::pose::refine_perspective`], at most `pose_iterations`
+//!    reprojection error ([`facecap_geom::pose::refine_perspective`], at most `pose_iterations`
 //!    iterations), warm-started from the state's pose, or, when the previous pose step
 //!    from that same pose was rejected, from the pose that step found (same optimum,
 //!    reached in one pass instead of several); then `z`; the step is accepted only if
@@ -36,7 +36,7 @@
 //!    matching residual targets, `beta = (A^T A + lambda_exp I)^{-1} (A^T y + lambda_exp U_exp^T w0_exp)` and
 //!    `w_exp = w0_exp + U_exp (beta - U_exp^T w0_exp)` (the exact minimiser over `w_exp`);
 //!    or with `w_exp >= 0` ([`Method::NonNegative`]) by sequential coordinate-wise NNLS
-//!    ([`crate::nnls`]) on `H = U A^T A U^T + lambda I`, `f = -(U A^T y + lambda w0)`;
+//!    ([`facecap_geom::nnls`]) on `H = U A^T A U^T + lambda I`, `f = -(U A^T y + lambda w0)`;
 //! 3. identity in the same way (thesis eq. 3.48), unless `update_identity` is off.
 //!
 //! Each block step minimises `C` over its block (or, for the pose, is rejected if it
@@ -51,13 +51,12 @@
 //! allocator).
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
+use facecap_geom::{nnls, pose};
 use nalgebra::{Point2, Point3};
 
 use crate::error::{Error, Result};
 use crate::kernels;
 use crate::model::TensorModel;
-use crate::nnls;
-use crate::pose;
 
 /// How the weights are constrained.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -725,7 +724,10 @@ impl Fitter {
                     h[i * r + i] += lambda;
                     sol[i] = ws.g[i] + lambda * mode_prior[i];
                 }
-                cholesky_solve(h, r, sol)?;
+                facecap_geom::cholesky::solve(h, r, sol).map_err(|j| Error::Numerical {
+                    operation: "fit normal equations",
+                    reason: format!("matrix not positive definite at pivot {j} (use lambda > 0 or more points)"),
+                })?;
                 // w = w0 + U (beta - beta0)
                 for (row, (wv, p)) in w.iter_mut().zip(prior).enumerate() {
                     let mut acc = *p;
@@ -1186,58 +1188,4 @@ fn mat_t_vec(u: &[f64], rows: usize, cols: usize, w: &[f64], out: &mut [f64]) {
             *o += uv * wr;
         }
     }
-}
-
-/// In-place Cholesky solve of the symmetric positive definite `a` (`n x n`, row-major,
-/// overwritten) with right-hand side `b` (overwritten by the solution).
-pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> Result<()> {
-    // The factorisation as row dot products (contiguous, vectorised), compiled for the
-    // dispatched CPU level.
-    pulp::Arch::new().dispatch(Cholesky { a, n, b })
-}
-
-struct Cholesky<'a> {
-    a: &'a mut [f64],
-    n: usize,
-    b: &'a mut [f64],
-}
-
-impl pulp::WithSimd for Cholesky<'_> {
-    type Output = Result<()>;
-
-    #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Result<()> {
-        cholesky_inner(self.a, self.n, self.b)
-    }
-}
-
-#[inline(always)]
-fn cholesky_inner(a: &mut [f64], n: usize, b: &mut [f64]) -> Result<()> {
-    for j in 0..n {
-        let (_, from_j) = a.split_at_mut(j * n);
-        let (rowj, below) = from_j.split_at_mut(n);
-        let d = rowj[j] - dot(&rowj[..j], &rowj[..j]);
-        if !(d > 0.0 && d.is_finite()) {
-            return Err(Error::Numerical {
-                operation: "fit normal equations",
-                reason: format!("matrix not positive definite at pivot {j} (use lambda > 0 or more points)"),
-            });
-        }
-        let d = d.sqrt();
-        rowj[j] = d;
-        for rowi in below.chunks_exact_mut(n) {
-            rowi[j] = (rowi[j] - dot(&rowi[..j], &rowj[..j])) / d;
-        }
-    }
-    for i in 0..n {
-        b[i] = (b[i] - dot(&a[i * n..i * n + i], &b[..i])) / a[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= a[k * n + i] * b[k];
-        }
-        b[i] = s / a[i * n + i];
-    }
-    Ok(())
 }

@@ -4,7 +4,7 @@
 //! Papanek 2010: a corresponded database becomes a data tensor ([`tensor`]), the
 //! Gram-matrix HOSVD gives a core tensor and mode matrices ([`model`]), the model is
 //! fitted to 2D image points frame by frame or over a sequence ([`fit`], regularised
-//! closed form or non-negative least squares by [`nnls`]), and expression transfer
+//! closed form or non-negative least squares by `facecap_geom::nnls`), and expression transfer
 //! combines fitted weights ([`transfer`]) with 2D reanimation by Poisson seamless
 //! cloning ([`poisson`], Perez et al. 2003).
 //!
@@ -31,10 +31,7 @@ pub mod features;
 pub mod fit;
 mod kernels;
 pub mod model;
-pub mod nnls;
-pub mod obj;
 pub mod poisson;
-pub mod pose;
 pub mod reanimate;
 pub mod synth;
 pub mod tensor;

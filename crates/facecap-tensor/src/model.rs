@@ -443,7 +443,10 @@ impl TensorModel {
     /// # Errors
     /// [`Error::Io`] on write failure.
     pub fn save(&self, path: &Path, f32_scalars: bool) -> Result<()> {
-        crate::obj::write_atomic(path, &self.to_bytes(f32_scalars))
+        let bytes = self.to_bytes(f32_scalars);
+        Ok(facecap_core::atomic::write_atomic(path, |w| {
+            std::io::Write::write_all(w, &bytes)
+        })?)
     }
 
     /// Reads a model file.

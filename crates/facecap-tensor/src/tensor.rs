@@ -32,7 +32,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::error::{Error, Result};
-use crate::obj::read_obj;
 
 /// Name given to the unmodified expression (no expression delta) in rig sampling.
 pub const NEUTRAL: &str = "neutral";
@@ -243,13 +242,13 @@ impl DataTensor {
             }
         }
         let first_key = (ids[0].clone(), exps[0].clone());
-        let first = read_obj(&files[&first_key])?;
+        let first = facecap_io::obj::read_obj_positions(&files[&first_key], None)?;
         let nv = first.positions.len();
         let triangles = first.triangles.clone();
         let (ids2, exps2) = (ids.clone(), exps.clone());
         Self::from_cells(ids, exps, nv, triangles, |i, e| {
             let path = &files[&(ids2[i].clone(), exps2[e].clone())];
-            let g = read_obj(path)?;
+            let g = facecap_io::obj::read_obj_positions(path, None)?;
             if g.positions.len() != nv {
                 return Err(Error::dim(
                     format!("vertex count of {}", path.display()),

@@ -3,9 +3,10 @@
 //! against a reference, sequences with one identity, lost points.
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
+use facecap_geom::nnls;
 use facecap_tensor::fit::{FitInput, FitParams, Fitter, Method, Projection, Stop};
 use facecap_tensor::model::{HosvdParams, TensorModel};
-use facecap_tensor::{nnls, synth};
+use facecap_tensor::synth;
 use nalgebra::{Point2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -3,7 +3,7 @@
 //! format error, never a panic or an abort (counts are checked against the bytes present
 //! before anything is reserved). Inputs tried: the case count below.
 
-#[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
+#[path = "../../facecap-io/tests/fuzz_common/mod.rs"]
 mod fuzz_common;
 
 use facecap_tensor::model::{HosvdParams, TensorModel};

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use facecap_core::landmarks::Landmarks68;
-use facecap_core::video::{open_source, Frame, SourceOptions};
+use facecap_io::video::{open_source, Frame, SourceOptions};
 use facecap_landmarks::detect::FaceDetector;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
 use facecap_landmarks::gaze::{EyeEstimate, IrisEstimator, IrisFrame};

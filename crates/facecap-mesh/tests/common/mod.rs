@@ -32,7 +32,7 @@ pub fn pattern(n: usize) -> Vec<u8> {
 /// The first `n` RGB frames of a shared clip (see [`clip_frame`]).
 pub fn clip_frames(test: &str, clip: &str, n: u64) -> Option<Vec<image::RgbImage>> {
     let path = facecap_core::paths::shared_data_file(test, clip)?;
-    let info = facecap_core::video::open_source(&path, &Default::default())
+    let info = facecap_io::video::open_source(&path, &Default::default())
         .unwrap()
         .info()
         .clone();
@@ -62,7 +62,7 @@ pub fn clip_frames(test: &str, clip: &str, n: u64) -> Option<Vec<image::RgbImage
 /// command as the fixture script), or `None` (with a SKIP line) when absent.
 pub fn clip_frame(test: &str, clip: &str, index: u64) -> Option<image::RgbImage> {
     let path = facecap_core::paths::shared_data_file(test, clip)?;
-    let info = facecap_core::video::open_source(&path, &Default::default())
+    let info = facecap_io::video::open_source(&path, &Default::default())
         .unwrap()
         .info()
         .clone();
