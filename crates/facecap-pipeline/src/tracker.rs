@@ -284,7 +284,7 @@ pub fn open_video_with(path: &Path, decode_threads: u32, strict: bool) -> Result
 /// [`open_video_with`], with colour frames too when `rgb` ([`VideoTracker::needs_rgb`]).
 ///
 /// # Errors
-/// As [`facecap_core::video::open_source`].
+/// As [`facecap_io::video::open_source`].
 pub fn open_video_rgb(path: &Path, decode_threads: u32, strict: bool, rgb: bool) -> Result<Box<dyn FrameSource>> {
     Ok(open_source(
         path,
