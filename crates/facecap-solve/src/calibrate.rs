@@ -48,6 +48,8 @@ use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
 /// | `rest_fraction` | 0.8 | share of the frames taken as resting after the first pass | (0, 1] |
 /// | `alpha_xy` | 5.0 | ridge on the image-plane offset (% IOD)^2 per unit^2 | `[0, 1e9]` |
 /// | `alpha_z` | 500.0 | ridge on the depth offset | `[0, 1e9]` |
+/// | `identity_ridge` | 1.0 | ridge on the identity coefficients (unit-variance modes), (% IOD)^2 | `[0, 1e9]` |
+/// | `residual_offsets` | true | with identity modes, also fit the offset field on what they leave | |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SubjectParams {
     /// Frames per pass.
@@ -60,6 +62,10 @@ pub struct SubjectParams {
     pub alpha_xy: f64,
     /// Depth ridge.
     pub alpha_z: f64,
+    /// Ridge on the identity coefficients (used only with identity modes).
+    pub identity_ridge: f64,
+    /// With identity modes: also fit the per-landmark offsets on the residual.
+    pub residual_offsets: bool,
 }
 
 impl Default for SubjectParams {
@@ -70,6 +76,8 @@ impl Default for SubjectParams {
             rest_fraction: 0.8,
             alpha_xy: 5.0,
             alpha_z: 500.0,
+            identity_ridge: 1.0,
+            residual_offsets: true,
         }
     }
 }
@@ -82,6 +90,7 @@ impl SubjectParams {
         check_range("rest_fraction", self.rest_fraction, 1e-6, 1.0)?;
         check_range("alpha_xy", self.alpha_xy, 0.0, 1e9)?;
         check_range("alpha_z", self.alpha_z, 0.0, 1e9)?;
+        check_range("identity_ridge", self.identity_ridge, 0.0, 1e9)?;
         Ok(())
     }
 }
@@ -91,8 +100,11 @@ impl SubjectParams {
 pub struct SubjectFit {
     /// The rig with the subject's neutral landmarks (`neutral + offsets`); deltas unchanged.
     pub rig: BlendshapeRig,
-    /// Per-landmark offsets (model frame, rig units; zero where unmapped).
+    /// Per-landmark offsets (model frame, rig units; zero where unmapped), identity
+    /// modes included.
     pub offsets: [Vector3<f64>; NUM_LANDMARKS],
+    /// Fitted identity coefficients (empty without identity modes).
+    pub identity: Vec<f64>,
     /// Frames solved per pass.
     pub frames_used: usize,
     /// Resting frames of the last pass (the ones the offsets were fitted on).
@@ -103,6 +115,50 @@ pub struct SubjectFit {
     pub mean_expression_before: f64,
     /// See `mean_expression_before`.
     pub mean_expression_after: f64,
+}
+
+/// A linear identity model on the rig's topology (for example ICT FaceKit's 100 PCA modes),
+/// at the rig's 68 landmarks: `neutral_j + sum_m beta_m b_mj`, modes scaled to unit variance.
+#[derive(Debug, Clone)]
+pub struct IdentityModes {
+    /// Mode names.
+    pub names: Vec<String>,
+    /// `b_mj`, `[mode][landmark][xyz]`.
+    pub deltas: ndarray::Array3<f64>,
+}
+
+impl IdentityModes {
+    /// The landmark deltas of an identity model read as a rig (its morph targets are the
+    /// modes; the landmark map must be the expression rig's).
+    ///
+    /// # Errors
+    /// When the model's mapped landmarks differ from the rig's or a delta is not finite.
+    pub fn from_rig(identity: &BlendshapeRig, rig: &BlendshapeRig) -> Result<Self> {
+        if identity.mapped != rig.mapped {
+            return Err(Error::rig("identity modes", "mapped landmarks differ from the rig's"));
+        }
+        if identity.deltas.iter().any(|v| !v.is_finite()) {
+            return Err(Error::rig("identity modes", "non-finite delta"));
+        }
+        Ok(IdentityModes {
+            names: identity.names.clone(),
+            deltas: identity.deltas.clone(),
+        })
+    }
+
+    /// Number of modes.
+    pub fn len(&self) -> usize {
+        self.names.len()
+    }
+
+    /// True without modes.
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+
+    fn mode(&self, m: usize, l: usize) -> Vector3<f64> {
+        Vector3::new(self.deltas[[m, l, 0]], self.deltas[[m, l, 1]], self.deltas[[m, l, 2]])
+    }
 }
 
 /// Solves `frames` in order with `solver` (warm-started), returning poses and weights.
@@ -139,7 +195,33 @@ pub fn fit_subject(
     frames: &[Landmarks68],
     params: &SubjectParams,
 ) -> Result<SubjectFit> {
+    fit_subject_with_identity(rig, None, camera, objective, priors, frames, params)
+}
+
+/// [`fit_subject`] with an identity model: each pass first fits the identity coefficients
+/// `beta` jointly over the resting frames (the same linearised residuals, summed over the
+/// landmarks, ridge `identity_ridge ||beta||^2`), then (with `residual_offsets`) the
+/// per-landmark offsets on what the modes leave.
+///
+/// # Errors
+/// As [`fit_subject`]; identity modes whose landmark count differs from the rig's.
+pub fn fit_subject_with_identity(
+    rig: &BlendshapeRig,
+    identity: Option<&IdentityModes>,
+    camera: Intrinsics,
+    objective: ObjectiveParams,
+    priors: &ShapePriors,
+    frames: &[Landmarks68],
+    params: &SubjectParams,
+) -> Result<SubjectFit> {
     params.validate()?;
+    if let Some(id) = identity {
+        if id.deltas.dim() != (id.len(), NUM_LANDMARKS, 3) {
+            return Err(Error::rig("identity modes", "expected [modes][68][3] deltas"));
+        }
+    }
+    let n_id = identity.map_or(0, IdentityModes::len);
+    let mut beta = vec![0.0; n_id];
     if frames.is_empty() {
         return Err(Error::Input {
             reason: "no tracked frame to fit the subject's neutral on".into(),
@@ -251,14 +333,69 @@ pub fn fit_subject(
             });
         }
         rest_frames = used;
+        let inv_used = 1.0 / used as f64;
+        for l in 0..NUM_LANDMARKS {
+            a[l] *= inv_used;
+            b[l] *= inv_used;
+        }
+        if let Some(id) = identity {
+            // (sum_l B_l^T a_l B_l + lambda I) dbeta = sum_l B_l^T b_l - lambda beta
+            let mut lhs = nalgebra::DMatrix::<f64>::zeros(n_id, n_id);
+            let mut rhs = nalgebra::DVector::<f64>::zeros(n_id);
+            let mut ab = vec![Vector3::<f64>::zeros(); n_id];
+            for l in 0..NUM_LANDMARKS {
+                if !current.mapped[l] {
+                    continue;
+                }
+                for (m, v) in ab.iter_mut().enumerate() {
+                    *v = a[l] * id.mode(m, l);
+                    rhs[m] += id.mode(m, l).dot(&b[l]);
+                }
+                for m in 0..n_id {
+                    let bm = id.mode(m, l);
+                    for k in m..n_id {
+                        lhs[(m, k)] += bm.dot(&ab[k]);
+                    }
+                }
+            }
+            for m in 0..n_id {
+                for k in 0..m {
+                    lhs[(m, k)] = lhs[(k, m)];
+                }
+                lhs[(m, m)] += params.identity_ridge;
+                rhs[m] -= params.identity_ridge * beta[m];
+            }
+            if let Some(ch) = lhs.cholesky() {
+                let db = ch.solve(&rhs);
+                if db.iter().all(|v| v.is_finite()) {
+                    for l in 0..NUM_LANDMARKS {
+                        if !current.mapped[l] {
+                            continue;
+                        }
+                        let d: Vector3<f64> = (0..n_id).map(|m| id.mode(m, l) * db[m]).sum();
+                        offsets[l] += d;
+                        b[l] -= a[l] * d;
+                        for c in 0..3 {
+                            current.neutral[[l, c]] += d[c];
+                        }
+                    }
+                    for (bm, d) in beta.iter_mut().zip(db.iter()) {
+                        *bm += d;
+                    }
+                }
+            }
+            if !params.residual_offsets {
+                continue;
+            }
+        }
         let damp = Matrix3::from_diagonal(&Vector3::new(params.alpha_xy, params.alpha_xy, params.alpha_z));
         for l in 0..NUM_LANDMARKS {
             if !current.mapped[l] {
                 continue;
             }
-            let lhs = a[l] / used as f64 + damp;
+            let lhs = a[l] + damp;
             let Some(ch) = lhs.cholesky() else { continue };
-            let d = ch.solve(&(b[l] / used as f64));
+            let d = ch.solve(&b[l]);
             if d.iter().all(|v| v.is_finite()) {
                 offsets[l] += d;
                 for c in 0..3 {
@@ -278,6 +415,7 @@ pub fn fit_subject(
         mean_offset: offsets.iter().map(|d| d.norm()).sum::<f64>() / mapped as f64,
         rig: current,
         offsets,
+        identity: beta,
         frames_used: sample.len(),
         rest_frames,
         mean_expression_before: before,
@@ -369,6 +507,98 @@ mod tests {
             .sum::<f64>()
             / NUM_LANDMARKS as f64;
         assert!(err < 0.06, "mean image-plane offset error {err} (offsets ~0.5)");
+    }
+
+    /// A subject built from identity modes: the joint multi-frame fit recovers the
+    /// coefficients and, with the offsets off, the neutral lies in the modes' span.
+    #[test]
+    fn identity_modes_are_recovered_over_frames() {
+        let rig = BlendshapeRig::synthetic(6, 11);
+        let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
+        let n_id = 4;
+        let mut modes = ndarray::Array3::<f64>::zeros((n_id, NUM_LANDMARKS, 3));
+        for m in 0..n_id {
+            for l in 0..NUM_LANDMARKS {
+                let t = l as f64 * (0.37 + 0.21 * m as f64);
+                modes[[m, l, 0]] = 0.3 * t.sin();
+                modes[[m, l, 1]] = 0.25 * (1.7 * t).cos();
+                modes[[m, l, 2]] = 0.2 * (0.9 * t).sin();
+            }
+        }
+        let id = IdentityModes {
+            names: (0..n_id).map(|m| format!("identity{m:03}")).collect(),
+            deltas: modes,
+        };
+        let beta_true = [1.2, -0.8, 0.5, -1.5];
+        let mut subject = rig.clone();
+        for l in 0..NUM_LANDMARKS {
+            for (m, b) in beta_true.iter().enumerate() {
+                for c in 0..3 {
+                    subject.neutral[[l, c]] += b * id.deltas[[m, l, c]];
+                }
+            }
+        }
+        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+        let frames: Vec<Landmarks68> = (0..60)
+            .map(|f| {
+                let mut w = vec![0.0; 6];
+                if f % 4 == 0 {
+                    w[(f / 4) % 6] = 0.6;
+                }
+                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(
+                    0.1 * (f as f64 * 0.3).sin(),
+                    0.35 * (f as f64 * 0.2).sin(),
+                    0.05,
+                ));
+                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(1.0, -2.0, 50.0));
+                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
+                    .map(|l| {
+                        let p = pose.project(&camera, &subject.landmark(l, &w)).unwrap();
+                        (p.x, p.y)
+                    })
+                    .collect();
+                Landmarks68::from_slice(&pts).unwrap()
+            })
+            .collect();
+        let params = SubjectParams {
+            identity_ridge: 1e-3,
+            residual_offsets: false,
+            iterations: 5,
+            ..SubjectParams::default()
+        };
+        let priors = ShapePriors::neutral(6);
+        let fit = fit_subject_with_identity(
+            &rig,
+            Some(&id),
+            camera,
+            ObjectiveParams::default(),
+            &priors,
+            &frames,
+            &params,
+        )
+        .unwrap();
+        assert_eq!(fit.identity.len(), n_id);
+        for (b, t) in fit.identity.iter().zip(&beta_true) {
+            assert!((b - t).abs() < 0.1, "identity {:?} against {beta_true:?}", fit.identity);
+        }
+        // the modes' identity check and a mismatched landmark set are errors
+        let mut other = rig.clone();
+        other.mapped[5] = false;
+        assert!(IdentityModes::from_rig(&other, &rig).is_err());
+        let bad = IdentityModes {
+            names: vec!["a".into()],
+            deltas: ndarray::Array3::zeros((1, 3, 3)),
+        };
+        assert!(fit_subject_with_identity(
+            &rig,
+            Some(&bad),
+            camera,
+            ObjectiveParams::default(),
+            &priors,
+            &frames,
+            &params
+        )
+        .is_err());
     }
 
     #[test]

@@ -53,7 +53,7 @@ pub mod synth;
 
 pub use basis::{Basis2d, Shape2dExample, Shapes2d, Similarity2d};
 pub use bobyqa_solver::{BobyqaParams, BobyqaSolver};
-pub use calibrate::{fit_subject, SubjectFit, SubjectParams};
+pub use calibrate::{fit_subject, fit_subject_with_identity, IdentityModes, SubjectFit, SubjectParams};
 pub use error::{Error, Result};
 pub use exact::{ExactParams, ExactSolver};
 pub use exact3d::{Exact3dParams, Exact3dSolver, ShapePriors};
