@@ -272,6 +272,7 @@ impl VideoTracker {
         let path = policy.shape_model_path()?;
         let ert = ShapePredictor::from_file_cached(&path)?.0.with_params(ErtParams {
             output: OutputPrecision::SubPixel,
+            ..Default::default()
         });
         let mut params = TrackerParams::default();
         if policy.smooth {
