@@ -134,6 +134,9 @@ pub struct Args {
     /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
     #[arg(long, value_name = "auto|N", default_value = "auto")]
     pub upsample: Upsample,
+    /// `--ert-precision`.
+    #[command(flatten)]
+    pub ert: crate::ert_flag::ErtFlag,
 }
 
 /// Everything shared by all videos.
@@ -313,6 +316,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         smooth: args.smooth,
         shape_model: None,
         upsample: args.upsample,
+        ert_precision: args.ert.ert_precision,
     })?;
     let muscles = args
         .muscles

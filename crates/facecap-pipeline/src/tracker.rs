@@ -90,6 +90,8 @@ pub struct TrackerPolicy {
     pub shape_model: Option<PathBuf>,
     /// Detector upsampling (`Upsample::Auto`: dlib's `detector(img, 1)` recall at less cost).
     pub upsample: facecap_landmarks::detect::Upsample,
+    /// ERT leaf precision (`Exact`: dlib's landmarks; `Fast`: 16-bit leaves).
+    pub ert_precision: facecap_landmarks::ert::ErtPrecision,
 }
 
 impl Default for TrackerPolicy {
@@ -99,6 +101,7 @@ impl Default for TrackerPolicy {
             smooth: false,
             shape_model: None,
             upsample: facecap_landmarks::detect::Upsample::Auto,
+            ert_precision: facecap_landmarks::ert::ErtPrecision::Exact,
         }
     }
 }
@@ -272,7 +275,7 @@ impl VideoTracker {
         let path = policy.shape_model_path()?;
         let ert = ShapePredictor::from_file_cached(&path)?.0.with_params(ErtParams {
             output: OutputPrecision::SubPixel,
-            ..Default::default()
+            precision: policy.ert_precision,
         });
         let mut params = TrackerParams::default();
         if policy.smooth {
