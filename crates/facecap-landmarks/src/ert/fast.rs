@@ -42,7 +42,7 @@ impl FastLeaves {
         let mut total = 0usize;
         let tables: Vec<&[f32]> = cascades.collect();
         for t in &tables {
-            let n = if dim == 0 { 0 } else { t.len() / dim };
+            let n = t.len().checked_div(dim).unwrap_or(0);
             offset.push(total);
             rows.push(n);
             total += n;
