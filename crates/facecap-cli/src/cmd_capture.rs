@@ -134,6 +134,9 @@ pub struct Args {
     /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
     #[arg(long, value_name = "auto|N", default_value = "auto")]
     pub upsample: Upsample,
+    /// `--ert-precision`.
+    #[command(flatten)]
+    pub ert: crate::ert_flag::ErtFlag,
     /// Landmark front end: `dlib68` (dlib's detector and 68-point model, LK tracking) or
     /// `mesh` (MediaPipe's face detector and 478-point face mesh, read as the same 68
     /// points; docs/mesh.md).
@@ -318,6 +321,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         smooth: args.smooth,
         shape_model: None,
         upsample: args.upsample,
+        ert_precision: args.ert.ert_precision,
         front_end: args.landmarks,
     })?;
     let muscles = args

@@ -80,6 +80,9 @@ pub struct Args {
     /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
     #[arg(long, value_name = "auto|N", default_value = "auto")]
     pub upsample: Upsample,
+    /// `--ert-precision`.
+    #[command(flatten)]
+    pub ert: crate::ert_flag::ErtFlag,
     /// Exit non-zero when any image cannot be read or processed (by default such images
     /// get a row with their error in `summary.csv`, the others are processed, and the
     /// exit code is non-zero only when no image could be processed).
@@ -100,6 +103,8 @@ pub struct VideoJob {
     pub model: Option<PathBuf>,
     /// `--upsample`.
     pub upsample: Upsample,
+    /// `--ert-precision`.
+    pub ert_precision: facecap_landmarks::ert::ErtPrecision,
     /// `--smooth` was given.
     pub smooth: bool,
     /// `--strict` was given (stop at the first undecodable frame).
@@ -150,6 +155,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             draw: args.draw,
             model: args.model.clone(),
             upsample: args.upsample,
+            ert_precision: args.ert.ert_precision,
             smooth: args.smooth,
             strict: args.strict,
         };
@@ -160,7 +166,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     let model_path = resolve_model(args.model.as_deref())?;
     let sp = ShapePredictor::from_file_cached(&model_path)
-        .map(|(sp, _)| sp)
+        .map(|(sp, _)| {
+            let params = sp.params();
+            sp.with_params(facecap_landmarks::ert::ErtParams {
+                precision: args.ert.ert_precision,
+                ..params
+            })
+        })
         .with_context(|| format!("loading shape predictor {}", model_path.display()))?;
     let detector = match args.face_box {
         Some(_) => None,

@@ -58,6 +58,7 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
         smooth: job.smooth,
         shape_model: job.model.clone(),
         upsample: job.upsample,
+        ert_precision: job.ert_precision,
         ..TrackerPolicy::default()
     })?;
     let source = facecap_pipeline::open_video_with(&job.input, 1, job.strict)

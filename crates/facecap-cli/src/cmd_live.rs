@@ -105,6 +105,9 @@ pub struct Args {
     /// Face detector up-sampling (as `capture`).
     #[arg(long, value_name = "auto|N", default_value = "auto")]
     pub upsample: Upsample,
+    /// `--ert-precision`.
+    #[command(flatten)]
+    pub ert: crate::ert_flag::ErtFlag,
 }
 
 fn parse_size(flag: &str, s: &str) -> anyhow::Result<(u32, u32)> {
@@ -176,6 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         smooth: false,
         shape_model: None,
         upsample: args.upsample,
+        ert_precision: args.ert.ert_precision,
         ..TrackerPolicy::default()
     })?;
     let outputs_osc = args.osc.as_deref().map(udp_to).transpose()?;

@@ -83,6 +83,9 @@ pub struct TrackArgs {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
+    /// `--ert-precision`.
+    #[command(flatten)]
+    pub ert: crate::ert_flag::ErtFlag,
     /// Use these landmarks (OpenFace-style CSV) instead of tracking the video.
     #[arg(long)]
     pub landmarks: Option<PathBuf>,
@@ -219,6 +222,7 @@ fn run_track(a: TrackArgs) -> anyhow::Result<std::process::ExitCode> {
                 smooth: a.smooth,
                 shape_model: a.model.clone(),
                 upsample: facecap_landmarks::detect::Upsample::Auto,
+                ert_precision: a.ert.ert_precision,
                 ..TrackerPolicy::default()
             })?;
             tracker.run(src, &mut [&mut sink], &mut RunControl::default())?

@@ -81,6 +81,7 @@ pub fn detect_landmarks(gray: &GrayImage) -> anyhow::Result<Option<Landmarks68>>
         .0
         .with_params(facecap_landmarks::ert::ErtParams {
             output: facecap_landmarks::ert::OutputPrecision::SubPixel,
+            ..Default::default()
         });
     let mut ws = ert.new_workspace();
     let mut pts = vec![Point2::origin(); ert.num_parts()];

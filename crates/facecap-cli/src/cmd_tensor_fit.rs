@@ -56,6 +56,9 @@ pub struct FitOptions {
     /// Maximum pose/expression sweeps per frame (warm-started).
     #[arg(long, default_value_t = 10)]
     pub frame_sweeps: usize,
+    /// `--ert-precision`.
+    #[command(flatten)]
+    pub ert: crate::ert_flag::ErtFlag,
     /// dlib 68-point shape model for the tracker (default: the model cache).
     #[arg(long)]
     pub shape_model: Option<PathBuf>,
@@ -150,6 +153,7 @@ pub fn fit_video(
                 smooth: false,
                 shape_model: o.shape_model.clone(),
                 upsample: facecap_landmarks::detect::Upsample::Auto,
+                ert_precision: o.ert.ert_precision,
                 ..TrackerPolicy::default()
             })?;
             let src = facecap_pipeline::open_video(video, 1).with_context(|| format!("opening {}", video.display()))?;

@@ -29,6 +29,7 @@ mod cmd_tensor;
 mod cmd_tensor_fit;
 mod cmd_transfer;
 mod default_rig;
+mod ert_flag;
 mod live_window;
 mod neutral;
 mod out;

@@ -90,6 +90,7 @@ fn bench(c: &mut Criterion) {
     };
     let sp = ShapePredictor::from_file(&sp_path).unwrap().with_params(ErtParams {
         output: OutputPrecision::SubPixel,
+        ..Default::default()
     });
     let tracker = LandmarkTracker::new(det, sp, TrackerParams::default()).unwrap();
     let mut g = c.benchmark_group("tracker");

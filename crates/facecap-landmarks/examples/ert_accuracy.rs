@@ -26,6 +26,7 @@ fn main() {
     let sp = ShapePredictor::from_file(&model).unwrap();
     let sp_sub = sp.clone().with_params(ErtParams {
         output: OutputPrecision::SubPixel,
+        ..Default::default()
     });
     let mut ws = sp.new_workspace();
     println!("| image | box | box (l,t,r,b) | NME ours | NME dlib | NME ours sub-pixel |");

@@ -109,6 +109,7 @@ fn main() {
     let sp_path = facecap_core::paths::model_file(facecap_core::paths::DLIB_68_MODEL).expect("68-point model");
     let sp = ShapePredictor::from_file(&sp_path).unwrap().with_params(ErtParams {
         output: OutputPrecision::SubPixel,
+        ..Default::default()
     });
     let det = FaceDetector::default_model().unwrap();
     let variant = std::env::args().nth(1).unwrap_or_default();

@@ -75,12 +75,14 @@ fn ert_matches_dlib_fixture() {
             "68",
             models[0].1.clone().with_params(facecap_landmarks::ert::ErtParams {
                 output: facecap_landmarks::ert::OutputPrecision::SubPixel,
+                ..Default::default()
             }),
         ),
         (
             "5",
             models[1].1.clone().with_params(facecap_landmarks::ert::ErtParams {
                 output: facecap_landmarks::ert::OutputPrecision::SubPixel,
+                ..Default::default()
             }),
         ),
     ];

@@ -14,6 +14,7 @@ use rand_chacha::ChaCha8Rng;
 fn subpixel(sp: ShapePredictor) -> ShapePredictor {
     sp.with_params(ErtParams {
         output: OutputPrecision::SubPixel,
+        ..Default::default()
     })
 }
 

@@ -64,6 +64,7 @@ fn tracker_matches_dlib_per_frame_on_shared_clips() {
     };
     let sp = ShapePredictor::from_file(&sp_path).unwrap().with_params(ErtParams {
         output: OutputPrecision::SubPixel,
+        ..Default::default()
     });
     let text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),

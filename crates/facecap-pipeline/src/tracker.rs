@@ -90,6 +90,8 @@ pub struct TrackerPolicy {
     pub shape_model: Option<PathBuf>,
     /// Detector upsampling (`Upsample::Auto`: dlib's `detector(img, 1)` recall at less cost).
     pub upsample: facecap_landmarks::detect::Upsample,
+    /// ERT leaf precision (`Exact`: dlib's landmarks; `Fast`: 16-bit leaves).
+    pub ert_precision: facecap_landmarks::ert::ErtPrecision,
     /// Which landmarks: dlib's 68 points, or the 478-point face mesh read as 68 points.
     pub front_end: FrontEnd,
 }
@@ -123,6 +125,7 @@ impl Default for TrackerPolicy {
             smooth: false,
             shape_model: None,
             upsample: facecap_landmarks::detect::Upsample::Auto,
+            ert_precision: facecap_landmarks::ert::ErtPrecision::Exact,
             front_end: FrontEnd::Dlib68,
         }
     }
@@ -349,6 +352,7 @@ impl VideoTracker {
         let path = policy.shape_model_path()?;
         let ert = ShapePredictor::from_file_cached(&path)?.0.with_params(ErtParams {
             output: OutputPrecision::SubPixel,
+            precision: policy.ert_precision,
         });
         let mut params = TrackerParams::default();
         if policy.smooth {

@@ -234,15 +234,19 @@ pub(super) fn decode(bytes: &[u8], stamp: SourceStamp, params: ErtParams) -> Opt
         return None;
     }
     let (initial_centred, initial_norm2) = centred_mean_shape(&initial);
-    Some(ShapePredictor {
-        params,
-        initial,
-        initial_centred,
-        initial_norm2,
-        cascades,
-        max_features,
-        max_trees,
-    })
+    Some(
+        ShapePredictor {
+            params,
+            initial,
+            initial_centred,
+            initial_norm2,
+            cascades,
+            max_features,
+            max_trees,
+            fast: None,
+        }
+        .with_params(params),
+    )
 }
 
 /// Every invariant inference relies on (the same ones [`super::ErtModel::validate`]

@@ -90,6 +90,7 @@ pub fn tracker(test: &str) -> Option<LandmarkTracker<FaceDetector, ShapePredicto
         .0
         .with_params(ErtParams {
             output: OutputPrecision::SubPixel,
+            ..Default::default()
         });
     LandmarkTracker::new(det, sp, TrackerParams::default()).ok()
 }
