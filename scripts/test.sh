@@ -54,6 +54,15 @@ set +e
 cargo test --workspace --no-fail-fast 2>&1
 status="$?"
 set -e
+# The workspace's criterion benchmarks once each in test mode (each bench function runs
+# one iteration and its own checks: the per-frame pipeline bench asserts the face is
+# tracked on every frame); timing runs are `cargo bench`.
+step "cargo test -p facecap-benches --benches (one pass of each benchmark)"
+set +e
+cargo test -p facecap-benches --benches 2>&1
+bench_status="$?"
+set -e
+if [ "$bench_status" -ne 0 ]; then status="$bench_status"; fi
 # `facecap batch` as a Slurm job array on a one-node cluster started on localhost
 # (16-70 s here; hard limit SLURM_TEST_TIMEOUT, default 600 s; SKIP: without root).
 # It uses the facecap binary `cargo test` built for the CLI's integration tests.
