@@ -836,7 +836,15 @@ fn write_report(
             };
             let mut ws = facecap_pipeline::RenderWorkspace::default();
             let radius = (f64::from(rgb.height()) / 110.0).max(2.5);
-            facecap_pipeline::preview::draw_overlay(&mut rgb, &setup.renderer, f, inputs.camera, scale, radius, &mut ws)?;
+            facecap_pipeline::preview::draw_overlay(
+                &mut rgb,
+                &setup.renderer,
+                f,
+                inputs.camera,
+                scale,
+                radius,
+                &mut ws,
+            )?;
             let size = rgb.height().clamp(64, 720);
             let render = setup.renderer.render(&f.weights, f.pose.as_ref(), size)?;
             let tile = report::side_by_side(&rgb, &render);

@@ -326,6 +326,10 @@ fn fit_to(img: RgbImage, size: (u32, u32)) -> RgbImage {
 /// solve, colour frame at the preview's frame size).
 type Batch = Vec<(usize, RgbImage)>;
 
+/// Frames written, busy seconds of decoding, rendering and encoding, and the kept
+/// frames.
+type StageTotals = (u64, f64, f64, f64, Vec<(u64, RgbImage)>);
+
 /// Writes the preview of `frames` (the solve of `video`, whose frames are `size` =
 /// width x height pixels as the solve saw them) to `out` (module docs), and returns the
 /// colour frames whose indices are in `keep` (for a report's stills), at the preview's
@@ -412,7 +416,7 @@ pub fn write_preview(
     let (out_pool_tx, out_pool_rx) = std::sync::mpsc::channel::<RgbImage>();
     let (batch_tx, batch_rx) = std::sync::mpsc::sync_channel::<Result<Batch>>(1);
     let (frame_pool_tx, frame_pool_rx) = std::sync::mpsc::channel::<RgbImage>();
-    let result = std::thread::scope(|scope| -> Result<(u64, f64, f64, f64, Vec<(u64, RgbImage)>)> {
+    let result = std::thread::scope(|scope| -> Result<StageTotals> {
         let writer = scope.spawn(move || -> Result<(u64, f64)> {
             let mut busy = 0.0;
             for img in rx {
@@ -483,7 +487,11 @@ pub fn write_preview(
                                 Some(img) => img,
                                 None => {
                                     let img = fr.rgb.take().ok_or_else(|| {
-                                        Error::invalid("preview source", "no colour frames", "a source that decodes RGB")
+                                        Error::invalid(
+                                            "preview source",
+                                            "no colour frames",
+                                            "a source that decodes RGB",
+                                        )
                                     })?;
                                     fit_to(img, layout.frame)
                                 }
@@ -538,7 +546,17 @@ pub fn write_preview(
                     .into_par_iter()
                     .zip(bufs)
                     .map_init(ComposeWorkspace::default, |ws, ((pos, mut img), mut buf)| {
-                        compose_frame_into(&mut buf, &mut img, &frames[pos], renderer, camera, names, &shown, &layout, ws)?;
+                        compose_frame_into(
+                            &mut buf,
+                            &mut img,
+                            &frames[pos],
+                            renderer,
+                            camera,
+                            names,
+                            &shown,
+                            &layout,
+                            ws,
+                        )?;
                         let _ = frame_pool_tx.send(img);
                         Ok(buf)
                     })

@@ -347,23 +347,24 @@ impl RigRenderer {
         let ortho_half = (light + ortho_eye).normalize();
         let colours = if is_ortho { &self.colours } else { &self.tinted };
         ws.lit.clear();
-        ws.lit.extend(ws.normals.iter().zip(&ws.view).zip(colours).map(|((n, v), albedo)| {
-            let (eye, half) = if is_ortho {
-                (ortho_eye, ortho_half)
-            } else {
-                let e = (-v).try_normalize(1e-12).unwrap_or(ortho_eye);
-                (e, (light + e).normalize())
-            };
-            let nrm = if n.dot(&eye) < 0.0 { -n } else { *n };
-            let diffuse = nrm.dot(&light).max(0.0);
-            let mut spec = nrm.dot(&half).max(0.0);
-            for _ in 0..4 {
-                spec *= spec;
-            }
-            spec *= SPECULAR;
-            let shade = AMBIENT + (1.0 - AMBIENT) * diffuse;
-            albedo.map(|c| (c * shade + spec).min(1.0) * 255.0)
-        }));
+        ws.lit
+            .extend(ws.normals.iter().zip(&ws.view).zip(colours).map(|((n, v), albedo)| {
+                let (eye, half) = if is_ortho {
+                    (ortho_eye, ortho_half)
+                } else {
+                    let e = (-v).try_normalize(1e-12).unwrap_or(ortho_eye);
+                    (e, (light + e).normalize())
+                };
+                let nrm = if n.dot(&eye) < 0.0 { -n } else { *n };
+                let diffuse = nrm.dot(&light).max(0.0);
+                let mut spec = nrm.dot(&half).max(0.0);
+                for _ in 0..4 {
+                    spec *= spec;
+                }
+                spec *= SPECULAR;
+                let shade = AMBIENT + (1.0 - AMBIENT) * diffuse;
+                albedo.map(|c| (c * shade + spec).min(1.0) * 255.0)
+            }));
         // Pass 1: depth and triangle id. Per triangle, the barycentric coordinates are
         // planes in screen space relative to its first vertex (w0 = 1 + a0 dx + b0 dy,
         // w1 = a1 dx + b1 dy), and each row visits only the span where all three can be
@@ -450,7 +451,12 @@ impl RigRenderer {
         // Pass 2: colour each covered pixel once.
         let stride = w as usize;
         let raw: &mut [u8] = img;
-        for (y, (ids, row)) in ws.id.chunks_exact(stride).zip(raw.chunks_exact_mut(3 * stride)).enumerate() {
+        for (y, (ids, row)) in ws
+            .id
+            .chunks_exact(stride)
+            .zip(raw.chunks_exact_mut(3 * stride))
+            .enumerate()
+        {
             let fy = y as f32;
             for (x, (&k, px)) in ids.iter().zip(row.chunks_exact_mut(3)).enumerate() {
                 if k == u32::MAX {

@@ -137,12 +137,18 @@ pub fn rgb_to_yuv420(img: &RgbImage, out: &mut Vec<u8>) {
         }
     }
     for cy in 0..ch {
-        let (top, bottom) = (&raw[3 * w * 2 * cy..3 * w * (2 * cy + 1)], &raw[3 * w * (2 * cy + 1)..3 * w * (2 * cy + 2)]);
+        let (top, bottom) = (
+            &raw[3 * w * 2 * cy..3 * w * (2 * cy + 1)],
+            &raw[3 * w * (2 * cy + 1)..3 * w * (2 * cy + 2)],
+        );
         let (ub, vb) = (&mut cb[cw * cy..cw * (cy + 1)], &mut cr[cw * cy..cw * (cy + 1)]);
         for (cx, (u, v)) in ub.iter_mut().zip(vb.iter_mut()).enumerate() {
             let o = 6 * cx;
             let sum = |c: usize| {
-                i32::from(top[o + c]) + i32::from(top[o + 3 + c]) + i32::from(bottom[o + c]) + i32::from(bottom[o + 3 + c])
+                i32::from(top[o + c])
+                    + i32::from(top[o + 3 + c])
+                    + i32::from(bottom[o + c])
+                    + i32::from(bottom[o + 3 + c])
             };
             let (r, g, b) = (sum(0), sum(1), sum(2));
             // sums of four: a shift by 10 is the mean's shift by 8

@@ -459,14 +459,7 @@ impl FfmpegSource {
         cmd.args(safe_input_args())
             .args(["-copyts", "-i"])
             .arg(file_url(path))
-            .args([
-                "-map",
-                "0:V:0",
-                "-vf",
-                &filters,
-                "-fps_mode",
-                "passthrough",
-            ])
+            .args(["-map", "0:V:0", "-vf", &filters, "-fps_mode", "passthrough"])
             .args(["-f", "rawvideo", "-pix_fmt", pix_fmt, "pipe:1"])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
