@@ -668,6 +668,7 @@ fn capture_one(
     } else {
         let (rep, stills) = facecap_pipeline::write_preview(
             video,
+            (info.width, info.height),
             frames,
             names,
             &setup.renderer,
@@ -704,6 +705,7 @@ fn capture_one(
             camera: &camera,
             preview: preview.is_some(),
             stills: &stills,
+            stills_scale: preview.as_ref().map_or(1.0, |p| p.scale),
             reference: &reference,
         },
     )?;
@@ -807,6 +809,8 @@ struct ReportInputs<'a> {
     preview: bool,
     /// Colour frames of the tiles (from the preview pass; grey frames otherwise).
     stills: &'a [(u64, RgbImage)],
+    /// Scale of the stills to the video's frames (the preview's).
+    stills_scale: f64,
     /// Where the MediaPipe reference would be.
     reference: &'a Path,
 }
@@ -831,16 +835,27 @@ fn write_report(
     let tiles: Vec<anyhow::Result<(String, String)>> = sheet
         .par_iter()
         .map(|(idx, gray, f)| {
-            let mut rgb = match inputs.stills.iter().find(|(i, _)| i == idx) {
-                Some((_, c)) => c.clone(),
-                None => RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
-                    let v = gray.get_pixel(x, y).0[0];
-                    image::Rgb([v, v, v])
-                }),
+            let (mut rgb, scale) = match inputs.stills.iter().find(|(i, _)| i == idx) {
+                Some((_, c)) => (c.clone(), inputs.stills_scale),
+                None => (
+                    RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
+                        let v = gray.get_pixel(x, y).0[0];
+                        image::Rgb([v, v, v])
+                    }),
+                    1.0,
+                ),
             };
             let mut ws = facecap_pipeline::RenderWorkspace::default();
             let radius = (f64::from(rgb.height()) / 110.0).max(2.5);
-            facecap_pipeline::preview::draw_overlay(&mut rgb, &setup.renderer, f, inputs.camera, 1.0, radius, &mut ws)?;
+            facecap_pipeline::preview::draw_overlay(
+                &mut rgb,
+                &setup.renderer,
+                f,
+                inputs.camera,
+                scale,
+                radius,
+                &mut ws,
+            )?;
             let size = rgb.height().clamp(64, 720);
             let render = setup.renderer.render(&f.weights, f.pose.as_ref(), size)?;
             let tile = report::side_by_side(&rgb, &render);

@@ -191,6 +191,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         ffmpeg: args.ffmpeg.clone(),
         strict: !args.lenient,
         threads: 0,
+        scale: None,
     };
     let mut reports = Vec::with_capacity(args.inputs.len());
     for (i, path) in args.inputs.iter().enumerate() {

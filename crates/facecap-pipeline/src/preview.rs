@@ -87,6 +87,9 @@ pub struct PreviewReport {
     pub height: u32,
     /// Frame rate written.
     pub fps: f64,
+    /// Scale of the preview's video part and of the kept frames to the video's frames
+    /// (<= 1).
+    pub scale: f64,
     /// Busy seconds decoding (this process's side).
     pub decode_seconds: f64,
     /// Wall seconds rendering (parallel).
@@ -190,7 +193,106 @@ pub fn draw_overlay(
     Ok(())
 }
 
-/// One preview frame from the colour frame `rgb` and its solved frame.
+/// Scratch images of one rendering thread for [`compose_frame_into`].
+#[derive(Debug, Default)]
+pub struct ComposeWorkspace {
+    /// The renderer's buffers.
+    pub render: RenderWorkspace,
+    /// The rig panel.
+    panel: RgbImage,
+}
+
+/// Copies `src` into `dst` with its top-left corner at (`x0`, 0), row by row (clipped to
+/// `dst`).
+fn blit(dst: &mut RgbImage, src: &RgbImage, x0: u32) {
+    let (dw, dh) = (dst.width() as usize, dst.height() as usize);
+    let (sw, sh) = (src.width() as usize, src.height() as usize);
+    let x0 = x0 as usize;
+    if x0 >= dw {
+        return;
+    }
+    let n = 3 * sw.min(dw - x0);
+    let d: &mut [u8] = dst;
+    let s: &[u8] = src;
+    for y in 0..sh.min(dh) {
+        let o = 3 * (y * dw + x0);
+        d[o..o + n].copy_from_slice(&s[3 * y * sw..3 * y * sw + n]);
+    }
+}
+
+/// Composes one preview frame into `out` (`layout.size`): `frame` is the colour video
+/// frame at the layout's frame size (the overlay and captions are drawn onto it).
+///
+/// # Errors
+/// A weight count that is not the rig's; images of the wrong size.
+#[allow(clippy::too_many_arguments)]
+pub fn compose_frame_into(
+    out: &mut RgbImage,
+    frame: &mut RgbImage,
+    f: &SolvedFrame,
+    renderer: &RigRenderer,
+    camera: &Intrinsics,
+    names: &[String],
+    shown: &[usize],
+    layout: &PreviewLayout,
+    ws: &mut ComposeWorkspace,
+) -> Result<()> {
+    if out.dimensions() != layout.size || frame.dimensions() != layout.frame {
+        return Err(Error::invalid(
+            "preview frame size",
+            format!("{:?} and {:?}", out.dimensions(), frame.dimensions()),
+            format!("{:?} and {:?}", layout.size, layout.frame),
+        ));
+    }
+    let radius = (f64::from(layout.frame.1) / 220.0).max(1.6);
+    draw_overlay(frame, renderer, f, camera, layout.scale, radius, &mut ws.render)?;
+    let stamp = format!("frame {}  {:.2} s", f.index, f.timestamp);
+    draw_text(frame, &stamp, 7, 7, 1, [0, 0, 0]);
+    draw_text(frame, &stamp, 6, 6, 1, [255, 255, 255]);
+    if !f.success {
+        let msg = "no face: tracking lost";
+        draw_text(frame, msg, 7, 21, 2, [0, 0, 0]);
+        draw_text(frame, msg, 6, 20, 2, [255, 80, 80]);
+    }
+    let raw: &mut [u8] = out;
+    raw.fill(255);
+    blit(out, frame, 0);
+    if ws.panel.dimensions() != (layout.panel, layout.panel) {
+        ws.panel = RgbImage::new(layout.panel, layout.panel);
+    }
+    let panel = &mut ws.panel;
+    for p in panel.pixels_mut() {
+        p.0 = crate::render::BACKGROUND;
+    }
+    renderer.draw(
+        panel,
+        &f.weights,
+        f.pose.as_ref(),
+        View::Portrait { size: layout.panel },
+        1.0,
+        &mut ws.render,
+    )?;
+    let caption = if f.success {
+        "rig: solved weights + head"
+    } else {
+        "rig: last solved frame"
+    };
+    draw_text(panel, caption, 6, 6, 1, [60, 60, 60]);
+    blit(out, panel, layout.frame.0);
+    let bx = layout.frame.0 + layout.panel + 8;
+    draw_text(out, "blendshape weights", i64::from(bx), 6, 1, [20, 20, 20]);
+    draw_weight_bars(
+        out,
+        (bx, 22, BARS_WIDTH - 12, layout.size.1.saturating_sub(24)),
+        names,
+        &f.weights,
+        shown,
+    );
+    Ok(())
+}
+
+/// One preview frame from the colour frame `rgb` (any size: scaled to the layout's)
+/// and its solved frame.
 ///
 /// # Errors
 /// A weight count that is not the rig's.
@@ -203,64 +305,49 @@ pub fn compose_frame(
     names: &[String],
     shown: &[usize],
     layout: &PreviewLayout,
-    ws: &mut RenderWorkspace,
+    ws: &mut ComposeWorkspace,
 ) -> Result<RgbImage> {
-    let mut out = RgbImage::from_pixel(layout.size.0, layout.size.1, Rgb([255, 255, 255]));
-    let mut frame = if layout.scale < 1.0 {
-        crate::render::scale_bilinear(rgb, layout.frame.0, layout.frame.1)
-    } else {
-        rgb.clone()
-    };
-    let radius = (f64::from(layout.frame.1) / 220.0).max(1.6);
-    draw_overlay(&mut frame, renderer, f, camera, layout.scale, radius, ws)?;
-    let stamp = format!("frame {}  {:.2} s", f.index, f.timestamp);
-    draw_text(&mut frame, &stamp, 7, 7, 1, [0, 0, 0]);
-    draw_text(&mut frame, &stamp, 6, 6, 1, [255, 255, 255]);
-    if !f.success {
-        let msg = "no face: tracking lost";
-        draw_text(&mut frame, msg, 7, 21, 2, [0, 0, 0]);
-        draw_text(&mut frame, msg, 6, 20, 2, [255, 80, 80]);
-    }
-    image::imageops::overlay(&mut out, &frame, 0, 0);
-    let mut panel = RgbImage::from_pixel(layout.panel, layout.panel, Rgb(crate::render::BACKGROUND));
-    renderer.draw(
-        &mut panel,
-        &f.weights,
-        f.pose.as_ref(),
-        View::Portrait { size: layout.panel },
-        1.0,
-        ws,
-    )?;
-    let caption = if f.success {
-        "rig: solved weights + head"
-    } else {
-        "rig: last solved frame"
-    };
-    draw_text(&mut panel, caption, 6, 6, 1, [60, 60, 60]);
-    image::imageops::overlay(&mut out, &panel, i64::from(layout.frame.0), 0);
-    let bx = layout.frame.0 + layout.panel + 8;
-    draw_text(&mut out, "blendshape weights", i64::from(bx), 6, 1, [20, 20, 20]);
-    draw_weight_bars(
-        &mut out,
-        (bx, 22, BARS_WIDTH - 12, layout.size.1.saturating_sub(24)),
-        names,
-        &f.weights,
-        shown,
-    );
+    let mut frame = fit_to(rgb.clone(), layout.frame);
+    let mut out = RgbImage::new(layout.size.0, layout.size.1);
+    compose_frame_into(&mut out, &mut frame, f, renderer, camera, names, shown, layout, ws)?;
     Ok(out)
 }
 
-/// Writes the preview of `frames` (the solve of `video`) to `out` (module docs), and
-/// returns the colour frames whose indices are in `keep` (for a report's stills).
-/// `interrupted` stops it at the next batch with [`Error::Interrupted`] (nothing is
-/// left under `out`).
+/// `img` scaled to `size` (bilinear) unless it has that size.
+fn fit_to(img: RgbImage, size: (u32, u32)) -> RgbImage {
+    if img.dimensions() == size {
+        img
+    } else {
+        crate::render::scale_bilinear(&img, size.0, size.1)
+    }
+}
+
+/// Decoded frames handed from the decoding thread to the renderer: (position in the
+/// solve, colour frame at the preview's frame size).
+type Batch = Vec<(usize, RgbImage)>;
+
+/// Frames written, busy seconds of decoding, rendering and encoding, and the kept
+/// frames.
+type StageTotals = (u64, f64, f64, f64, Vec<(u64, RgbImage)>);
+
+/// Writes the preview of `frames` (the solve of `video`, whose frames are `size` =
+/// width x height pixels as the solve saw them) to `out` (module docs), and returns the
+/// colour frames whose indices are in `keep` (for a report's stills), at the preview's
+/// frame size ([`PreviewReport::scale`] of the video's). `interrupted` stops it at the
+/// next batch with [`Error::Interrupted`] (nothing is left under `out`).
+///
+/// Three stages run at once: a thread decodes (ffmpeg scales video files to the
+/// preview size itself, see [`SourceOptions::scale`]), the calling thread renders
+/// batches in parallel with rayon, and a thread hands the rendered frames to the
+/// encoder in order.
 ///
 /// # Errors
 /// Decoding, rendering or encoding failures; a video whose frames do not match
-/// `frames`.
+/// `frames` or `size`.
 #[allow(clippy::too_many_arguments)]
 pub fn write_preview(
     video: &Path,
+    size: (u32, u32),
     frames: &[SolvedFrame],
     names: &[String],
     renderer: &RigRenderer,
@@ -277,18 +364,29 @@ pub fn write_preview(
             "64..=2160 pixels",
         ));
     }
+    if !(params.max_fps.is_finite() && (1.0..=240.0).contains(&params.max_fps)) {
+        return Err(Error::invalid("preview max_fps", params.max_fps, "1..=240"));
+    }
+    if size.0 == 0 || size.1 == 0 {
+        return Err(Error::invalid("preview video size", format!("{size:?}"), "non-zero"));
+    }
+    let layout = PreviewLayout::new(size.0, size.1, params.max_height);
     let mut source = open_source(
         video,
         &SourceOptions {
             rgb: true,
             threads: params.decode_threads,
+            scale: (layout.frame != size).then_some(layout.frame),
             ..SourceOptions::default()
         },
     )?;
     let info = source.info().clone();
-    let layout = PreviewLayout::new(info.width, info.height, params.max_height);
-    if !(params.max_fps.is_finite() && (1.0..=240.0).contains(&params.max_fps)) {
-        return Err(Error::invalid("preview max_fps", params.max_fps, "1..=240"));
+    if (info.width, info.height) != layout.frame && (info.width, info.height) != size {
+        return Err(Error::invalid(
+            "preview source",
+            format!("{}x{} frames", info.width, info.height),
+            format!("{}x{} (the solve's) or {:?}", size.0, size.1, layout.frame),
+        ));
     }
     let video_fps = if info.fps.is_finite() && info.fps > 0.0 {
         info.fps
@@ -310,22 +408,22 @@ pub fn write_preview(
     let rows = (layout.size.1.saturating_sub(24) / BAR_ROW) as usize;
     let shown = shapes_to_show(frames, renderer.num_shapes(), rows);
     let batch = (2 * rayon::current_num_threads()).max(4);
-    let (mut decode_s, mut render_s) = (0.0, 0.0);
-    let mut next = 0usize;
-    let (mut next_index, mut consecutive) = (0u64, 0u32);
-    let mut kept = Vec::new();
-    // Frames go to ffmpeg from their own thread, so encoding overlaps decoding and
-    // rendering the next batch.
-    let (tx, rx) = std::sync::mpsc::sync_channel::<RgbImage>(batch);
     let abort = AtomicBool::new(false);
     let abort_ref = &abort;
-    let (loop_result, written) = std::thread::scope(|scope| {
+    let stop = || abort_ref.load(Ordering::SeqCst) || interrupted.is_some_and(|f| f.load(Ordering::SeqCst));
+    // Finished frames go to the writer thread; the buffers come back for reuse.
+    let (tx, rx) = std::sync::mpsc::sync_channel::<RgbImage>(batch);
+    let (out_pool_tx, out_pool_rx) = std::sync::mpsc::channel::<RgbImage>();
+    let (batch_tx, batch_rx) = std::sync::mpsc::sync_channel::<Result<Batch>>(1);
+    let (frame_pool_tx, frame_pool_rx) = std::sync::mpsc::channel::<RgbImage>();
+    let result = std::thread::scope(|scope| -> Result<StageTotals> {
         let writer = scope.spawn(move || -> Result<(u64, f64)> {
             let mut busy = 0.0;
             for img in rx {
                 let t = Instant::now();
                 encoder.write_frame(&img)?;
                 busy += t.elapsed().as_secs_f64();
+                let _ = out_pool_tx.send(img);
             }
             if abort_ref.load(Ordering::SeqCst) {
                 // dropped unfinished: ffmpeg is stopped and nothing is published
@@ -335,72 +433,132 @@ pub fn write_preview(
             let n = encoder.finish()?;
             Ok((n, busy + t.elapsed().as_secs_f64()))
         });
-        let loop_result = (|| -> Result<()> {
-            loop {
-                if interrupted.is_some_and(|f| f.load(Ordering::SeqCst)) {
-                    return Err(Error::Interrupted { frame: next as u64 });
-                }
-                let t = Instant::now();
-                let mut decoded = Vec::with_capacity(batch);
-                for _ in 0..batch {
-                    let mut fr = Frame::default();
-                    match source.read_into(&mut fr) {
-                        Ok(false) => break,
-                        Ok(true) => {
-                            next_index = fr.index + 1;
-                            consecutive = 0;
+        let decoder = scope.spawn(move || -> (f64, Vec<(u64, RgbImage)>) {
+            let mut busy = 0.0;
+            let mut kept = Vec::new();
+            let r = (|| -> Result<()> {
+                let (mut pos, mut next_index, mut consecutive) = (0usize, 0u64, 0u32);
+                let mut fr = Frame::default();
+                loop {
+                    if stop() {
+                        return Err(Error::Interrupted { frame: pos as u64 });
+                    }
+                    let t = Instant::now();
+                    let mut decoded = Batch::with_capacity(batch);
+                    while decoded.len() < batch {
+                        if fr.rgb.is_none() {
+                            fr.rgb = frame_pool_rx.try_recv().ok();
                         }
-                        // A frame the tracking pass could not decode either (salvage, as
-                        // in the tracker): shown as a dark frame marked lost.
-                        Err(e) => {
-                            let index = match &e {
-                                facecap_core::Error::Decode { frame: Some(k), .. } => (*k).max(next_index),
-                                _ => next_index,
-                            };
-                            next_index = index + 1;
-                            consecutive += 1;
-                            if consecutive > crate::tracker::MAX_CONSECUTIVE_DECODE_ERRORS {
-                                break;
+                        let rgb = match source.read_into(&mut fr) {
+                            Ok(false) => break,
+                            Ok(true) => {
+                                next_index = fr.index + 1;
+                                consecutive = 0;
+                                None
                             }
-                            fr.index = index;
-                            fr.rgb = Some(RgbImage::from_pixel(
-                                info.width.max(1),
-                                info.height.max(1),
-                                Rgb([40, 40, 40]),
+                            // A frame the tracking pass could not decode either (salvage,
+                            // as in the tracker): shown as a dark frame marked lost.
+                            Err(e) => {
+                                let index = match &e {
+                                    facecap_core::Error::Decode { frame: Some(k), .. } => (*k).max(next_index),
+                                    _ => next_index,
+                                };
+                                next_index = index + 1;
+                                consecutive += 1;
+                                if consecutive > crate::tracker::MAX_CONSECUTIVE_DECODE_ERRORS {
+                                    break;
+                                }
+                                fr.index = index;
+                                Some(RgbImage::from_pixel(layout.frame.0, layout.frame.1, Rgb([40, 40, 40])))
+                            }
+                        };
+                        let solved = frames.get(pos);
+                        if solved.map(|s| s.index) != Some(fr.index) {
+                            return Err(Error::invalid(
+                                "preview frames",
+                                format!("video frame {} has no solved frame", fr.index),
+                                format!("the {} frames of the solve, in order", frames.len()),
                             ));
                         }
-                    }
-                    decoded.push(fr);
-                }
-                decode_s += t.elapsed().as_secs_f64();
-                if decoded.is_empty() {
-                    break;
-                }
-                for (k, fr) in decoded.iter().enumerate() {
-                    if keep.contains(&fr.index) {
-                        if let Some(rgb) = &fr.rgb {
-                            kept.push((fr.index, rgb.clone()));
+                        let wanted = pos % stride == 0;
+                        let kept_here = keep.contains(&fr.index);
+                        if wanted || kept_here {
+                            let img = match rgb {
+                                Some(img) => img,
+                                None => {
+                                    let img = fr.rgb.take().ok_or_else(|| {
+                                        Error::invalid(
+                                            "preview source",
+                                            "no colour frames",
+                                            "a source that decodes RGB",
+                                        )
+                                    })?;
+                                    fit_to(img, layout.frame)
+                                }
+                            };
+                            if kept_here {
+                                kept.push((fr.index, img.clone()));
+                            }
+                            if wanted {
+                                decoded.push((pos, img));
+                            } else {
+                                fr.rgb = Some(img);
+                            }
                         }
+                        pos += 1;
                     }
-                    let solved = frames.get(next + k);
-                    if solved.map(|s| s.index) != Some(fr.index) {
-                        return Err(Error::invalid(
-                            "preview frames",
-                            format!("video frame {} has no solved frame", fr.index),
-                            format!("the {} frames of the solve, in order", frames.len()),
-                        ));
+                    busy += t.elapsed().as_secs_f64();
+                    if decoded.is_empty() {
+                        break;
+                    }
+                    if batch_tx.send(Ok(decoded)).is_err() {
+                        return Ok(());
                     }
                 }
+                if pos != frames.len() {
+                    return Err(Error::invalid(
+                        "preview frames",
+                        format!("{pos} frames decoded"),
+                        format!("the {} frames of the solve", frames.len()),
+                    ));
+                }
+                Ok(())
+            })();
+            if let Err(e) = r {
+                let _ = batch_tx.send(Err(e));
+            }
+            (busy, kept)
+        });
+        let mut render_s = 0.0;
+        let loop_result = (|| -> Result<()> {
+            for decoded in &batch_rx {
+                let decoded = decoded?;
                 let t = Instant::now();
+                let bufs: Vec<RgbImage> = decoded
+                    .iter()
+                    .map(|_| {
+                        out_pool_rx
+                            .try_recv()
+                            .unwrap_or_else(|_| RgbImage::new(layout.size.0, layout.size.1))
+                    })
+                    .collect();
                 let rendered: Vec<Result<RgbImage>> = decoded
-                    .par_iter()
-                    .enumerate()
-                    .filter(|(k, _)| (next + k) % stride == 0)
-                    .map_init(RenderWorkspace::default, |ws, (k, fr)| {
-                        let rgb = fr.rgb.as_ref().ok_or_else(|| {
-                            Error::invalid("preview source", "no colour frames", "a source that decodes RGB")
-                        })?;
-                        compose_frame(rgb, &frames[next + k], renderer, camera, names, &shown, &layout, ws)
+                    .into_par_iter()
+                    .zip(bufs)
+                    .map_init(ComposeWorkspace::default, |ws, ((pos, mut img), mut buf)| {
+                        compose_frame_into(
+                            &mut buf,
+                            &mut img,
+                            &frames[pos],
+                            renderer,
+                            camera,
+                            names,
+                            &shown,
+                            &layout,
+                            ws,
+                        )?;
+                        let _ = frame_pool_tx.send(img);
+                        Ok(buf)
                     })
                     .collect();
                 render_s += t.elapsed().as_secs_f64();
@@ -410,37 +568,32 @@ pub fn write_preview(
                         return Ok(());
                     }
                 }
-                next += decoded.len();
-            }
-            if next != frames.len() {
-                return Err(Error::invalid(
-                    "preview frames",
-                    format!("{next} frames decoded"),
-                    format!("the {} frames of the solve", frames.len()),
-                ));
             }
             Ok(())
         })();
-        let finished = if loop_result.is_ok() {
-            drop(tx);
-            writer.join().unwrap_or(Err(Error::StagePanicked {
-                stage: "preview encoding",
-            }))
-        } else {
+        if loop_result.is_err() {
             abort.store(true, Ordering::SeqCst);
-            drop(tx);
-            let _ = writer.join();
-            Ok((0, 0.0))
-        };
-        (loop_result, finished)
+        }
+        // unblocks a decoder waiting to hand over a batch
+        drop(batch_rx);
+        let (decode_s, kept) = decoder.join().map_err(|_| Error::StagePanicked {
+            stage: "preview decoding",
+        })?;
+        drop(tx);
+        let written = writer.join().unwrap_or(Err(Error::StagePanicked {
+            stage: "preview encoding",
+        }));
+        loop_result?;
+        let (n, encode_s) = written?;
+        Ok((n, decode_s, render_s, encode_s, kept))
     });
-    loop_result?;
-    let (written, encode_s) = written?;
+    let (written, decode_s, render_s, encode_s, kept) = result?;
     let report = PreviewReport {
         frames: written,
         width: layout.size.0,
         height: layout.size.1,
         fps,
+        scale: layout.scale,
         decode_seconds: decode_s,
         render_seconds: render_s,
         encode_seconds: encode_s,

@@ -88,6 +88,21 @@ pub struct RenderWorkspace {
     normals: Vec<Vector3<f32>>,
     depth: Vec<f32>,
     id: Vec<u32>,
+    setup: Vec<TriSetup>,
+    lit: Vec<[f32; 3]>,
+}
+
+/// Screen-space set-up of one triangle (see [`RigRenderer::draw`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct TriSetup {
+    ox: f32,
+    oy: f32,
+    a0: f32,
+    b0: f32,
+    a1: f32,
+    b1: f32,
+    /// Lit colours of the three vertices (0..255).
+    lit: [[f32; 3]; 3],
 }
 
 /// A rig ready to render (module docs). `Send + Sync`: share one between threads, one
@@ -96,6 +111,8 @@ pub struct RenderWorkspace {
 pub struct RigRenderer {
     mesh: MorphMesh,
     colours: Vec<[f32; 3]>,
+    /// `colours` mixed with the overlay tint ([`View::Camera`]).
+    tinted: Vec<[f32; 3]>,
     mouth: Option<[u32; 8]>,
     centre: Vector3<f64>,
     radius: f64,
@@ -200,9 +217,14 @@ impl RigRenderer {
             let ids: Option<Vec<u32>> = INNER_LIP.iter().map(|&i| m.vertices[i]).collect();
             mouth = ids.and_then(|v| <[u32; 8]>::try_from(v).ok());
         }
+        let tinted = colours
+            .iter()
+            .map(|c| [0, 1, 2].map(|ch| c[ch] + OVERLAY_TINT_MIX * (OVERLAY_TINT[ch] - c[ch])))
+            .collect();
         Ok(RigRenderer {
             mesh: mesh.clone(),
             colours,
+            tinted,
             mouth,
             centre,
             radius,
@@ -302,6 +324,8 @@ impl RigRenderer {
         ws.depth.resize(pixels, f32::NEG_INFINITY);
         ws.id.clear();
         ws.id.resize(pixels, u32::MAX);
+        ws.setup.clear();
+        ws.setup.resize(self.mesh.base.triangles.len(), TriSetup::default());
         // Mouth cavity: behind every surface.
         if let Some(ids) = self.mouth {
             let poly: Vec<(f64, f64)> = ids
@@ -315,7 +339,37 @@ impl RigRenderer {
                 fill_polygon(img, &poly, MOUTH, alpha);
             }
         }
-        // Pass 1: depth and triangle id.
+        // Lighting per vertex (Gouraud: the smooth vertex normals lit once, the colours
+        // interpolated per pixel; on the rigs' small triangles it looks like per-pixel
+        // lighting at a fraction of the cost).
+        let light = Vector3::new(0.35f32, 0.45, 1.0).normalize();
+        let ortho_eye = Vector3::new(0.0f32, 0.0, 1.0);
+        let ortho_half = (light + ortho_eye).normalize();
+        let colours = if is_ortho { &self.colours } else { &self.tinted };
+        ws.lit.clear();
+        ws.lit
+            .extend(ws.normals.iter().zip(&ws.view).zip(colours).map(|((n, v), albedo)| {
+                let (eye, half) = if is_ortho {
+                    (ortho_eye, ortho_half)
+                } else {
+                    let e = (-v).try_normalize(1e-12).unwrap_or(ortho_eye);
+                    (e, (light + e).normalize())
+                };
+                let nrm = if n.dot(&eye) < 0.0 { -n } else { *n };
+                let diffuse = nrm.dot(&light).max(0.0);
+                let mut spec = nrm.dot(&half).max(0.0);
+                for _ in 0..4 {
+                    spec *= spec;
+                }
+                spec *= SPECULAR;
+                let shade = AMBIENT + (1.0 - AMBIENT) * diffuse;
+                albedo.map(|c| (c * shade + spec).min(1.0) * 255.0)
+            }));
+        // Pass 1: depth and triangle id. Per triangle, the barycentric coordinates are
+        // planes in screen space relative to its first vertex (w0 = 1 + a0 dx + b0 dy,
+        // w1 = a1 dx + b1 dy), and each row visits only the span where all three can be
+        // inside (the exact test is still made per pixel).
+        const EPS: f32 = -1e-4;
         for (k, t) in self.mesh.base.triangles.iter().enumerate() {
             let [a, b, c] = t.map(|i| i as usize);
             let fnrm = (ws.view[b] - ws.view[a]).cross(&(ws.view[c] - ws.view[a]));
@@ -339,18 +393,54 @@ impl RigRenderer {
             let maxx = p0[0].max(p1[0]).max(p2[0]).ceil().min(w as f32 - 1.0) as i64;
             let miny = p0[1].min(p1[1]).min(p2[1]).floor().max(0.0) as i64;
             let maxy = p0[1].max(p1[1]).max(p2[1]).ceil().min(h as f32 - 1.0) as i64;
+            if minx > maxx || miny > maxy {
+                continue;
+            }
+            let inv = 1.0 / area;
+            let su = TriSetup {
+                ox: p0[0],
+                oy: p0[1],
+                a0: (p1[1] - p2[1]) * inv,
+                b0: (p2[0] - p1[0]) * inv,
+                a1: (p2[1] - p0[1]) * inv,
+                b1: (p0[0] - p2[0]) * inv,
+                lit: [ws.lit[a], ws.lit[b], ws.lit[c]],
+            };
+            ws.setup[k] = su;
+            let (z0, z1, z2) = (p0[2] - p2[2], p1[2] - p2[2], p2[2]);
+            let a2 = -(su.a0 + su.a1);
             for y in miny..=maxy {
-                for x in minx..=maxx {
-                    let (px, py) = (x as f32, y as f32);
-                    let w0 = ((p1[0] - px) * (p2[1] - py) - (p1[1] - py) * (p2[0] - px)) / area;
-                    let w1 = ((p2[0] - px) * (p0[1] - py) - (p2[1] - py) * (p0[0] - px)) / area;
+                let dy = y as f32 - su.oy;
+                let (c0, c1) = (1.0 + su.b0 * dy, su.b1 * dy);
+                let c2 = 1.0 - c0 - c1;
+                // the dx where each coordinate reaches EPS bounds the span
+                let (mut lo, mut hi) = (minx as f32 - su.ox, maxx as f32 - su.ox);
+                for (cc, aa) in [(c0, su.a0), (c1, su.a1), (c2, a2)] {
+                    if aa > 0.0 {
+                        lo = lo.max((EPS - cc) / aa);
+                    } else if aa < 0.0 {
+                        hi = hi.min((EPS - cc) / aa);
+                    } else if cc < EPS {
+                        hi = lo - 1.0;
+                    }
+                }
+                if lo > hi {
+                    continue;
+                }
+                // truncation and a pixel of slack each side (the test below decides)
+                let x0 = (((lo + su.ox) as i64) - 1).max(minx);
+                let x1 = (((hi + su.ox) as i64) + 2).min(maxx);
+                let row = y as usize * w as usize;
+                for x in x0..=x1 {
+                    let dx = x as f32 - su.ox;
+                    let w0 = c0 + su.a0 * dx;
+                    let w1 = c1 + su.a1 * dx;
                     let w2 = 1.0 - w0 - w1;
-                    const EPS: f32 = -1e-4;
                     if w0 < EPS || w1 < EPS || w2 < EPS {
                         continue;
                     }
-                    let z = w0 * p0[2] + w1 * p1[2] + w2 * p2[2];
-                    let idx = y as usize * w as usize + x as usize;
+                    let z = z2 + w0 * z0 + w1 * z1;
+                    let idx = row + x as usize;
                     if z > ws.depth[idx] {
                         ws.depth[idx] = z;
                         ws.id[idx] = k as u32;
@@ -358,49 +448,35 @@ impl RigRenderer {
                 }
             }
         }
-        // Pass 2: shade each covered pixel once.
-        let light = Vector3::new(0.35f32, 0.45, 1.0).normalize();
-        for (idx, &k) in ws.id.iter().enumerate() {
-            if k == u32::MAX {
-                continue;
-            }
-            let (x, y) = ((idx % w as usize) as f32, (idx / w as usize) as f32);
-            let [a, b, c] = self.mesh.base.triangles[k as usize].map(|i| i as usize);
-            let (p0, p1, p2) = (ws.screen[a], ws.screen[b], ws.screen[c]);
-            let area = (p1[0] - p0[0]) * (p2[1] - p0[1]) - (p1[1] - p0[1]) * (p2[0] - p0[0]);
-            let w0 = (((p1[0] - x) * (p2[1] - y) - (p1[1] - y) * (p2[0] - x)) / area).clamp(0.0, 1.0);
-            let w1 = (((p2[0] - x) * (p0[1] - y) - (p2[1] - y) * (p0[0] - x)) / area).clamp(0.0, 1.0);
-            let w2 = (1.0 - w0 - w1).max(0.0);
-            let mut nrm = ws.normals[a] * w0 + ws.normals[b] * w1 + ws.normals[c] * w2;
-            let l = nrm.norm();
-            if l > 0.0 {
-                nrm /= l;
-            }
-            let eye = if is_ortho {
-                Vector3::new(0.0, 0.0, 1.0)
-            } else {
-                (-(ws.view[a] * w0 + ws.view[b] * w1 + ws.view[c] * w2)).normalize()
-            };
-            if nrm.dot(&eye) < 0.0 {
-                nrm = -nrm;
-            }
-            let diffuse = nrm.dot(&light).max(0.0);
-            let half = (light + eye).normalize();
-            let mut spec = nrm.dot(&half).max(0.0);
-            for _ in 0..4 {
-                spec *= spec;
-            }
-            spec *= SPECULAR;
-            let (ca, cb, cc) = (self.colours[a], self.colours[b], self.colours[c]);
-            let px = img.get_pixel_mut(x as u32, y as u32);
-            for ch in 0..3 {
-                let mut albedo = ca[ch] * w0 + cb[ch] * w1 + cc[ch] * w2;
-                if !is_ortho {
-                    albedo += OVERLAY_TINT_MIX * (OVERLAY_TINT[ch] - albedo);
+        // Pass 2: colour each covered pixel once.
+        let stride = w as usize;
+        let raw: &mut [u8] = img;
+        for (y, (ids, row)) in ws
+            .id
+            .chunks_exact(stride)
+            .zip(raw.chunks_exact_mut(3 * stride))
+            .enumerate()
+        {
+            let fy = y as f32;
+            for (x, (&k, px)) in ids.iter().zip(row.chunks_exact_mut(3)).enumerate() {
+                if k == u32::MAX {
+                    continue;
                 }
-                let v = (albedo * (AMBIENT + (1.0 - AMBIENT) * diffuse) + spec).min(1.0) * 255.0;
-                // non-negative: +0.5 and truncation round to nearest
-                px.0[ch] = (alpha * v + (1.0 - alpha) * f32::from(px.0[ch]) + 0.5) as u8;
+                let su = &ws.setup[k as usize];
+                let (dx, dy) = (x as f32 - su.ox, fy - su.oy);
+                let w0 = (1.0 + su.a0 * dx + su.b0 * dy).clamp(0.0, 1.0);
+                let w1 = (su.a1 * dx + su.b1 * dy).clamp(0.0, 1.0);
+                let w2 = (1.0 - w0 - w1).max(0.0);
+                let [la, lb, lc] = &su.lit;
+                for ch in 0..3 {
+                    let v = la[ch] * w0 + lb[ch] * w1 + lc[ch] * w2;
+                    // non-negative: +0.5 and truncation round to nearest
+                    px[ch] = if alpha == 1.0 {
+                        (v + 0.5) as u8
+                    } else {
+                        (alpha * v + (1.0 - alpha) * f32::from(px[ch]) + 0.5) as u8
+                    };
+                }
             }
         }
         Ok(())

@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! ffmpeg -nostdin -hide_banner -nostats -loglevel level+info [-xerror] [-threads N]
-//!        -copyts -i FILE -map 0:V:0 -vf showinfo=checksum=0 -fps_mode passthrough
+//!        -copyts -i FILE -map 0:V:0 -vf [scale=W:H:flags=bilinear,]showinfo=checksum=0 -fps_mode passthrough
 //!        -f rawvideo -pix_fmt yuv420p|yuv444p pipe:1          (stdin = /dev/null)
 //! ```
 //!
@@ -17,6 +17,9 @@
 //!   exact presentation timestamp `pts * time_base` (`-copyts`: no shift to zero, i.e.
 //!   what `ffprobe -show_entries frame=pts_time` reports) and a size change is detected.
 //! * `-fps_mode passthrough`: no frame is duplicated or dropped to fit a constant rate.
+//! * `scale=...` only with [`SourceOptions::scale`]: ffmpeg's SIMD scaler shrinks the
+//!   frames before they are piped and converted (the sizes `showinfo` reports are then
+//!   the scaled ones).
 //! * `-map 0:V:0`: the first video stream that is not an attached picture (cover art).
 //! * Strict mode ([`SourceOptions::strict`], the default): `-xerror` makes ffmpeg 5 stop at
 //!   the first decode error, and since ffmpeg 7 merely drops a damaged frame even then,
@@ -441,6 +444,10 @@ impl FfmpegSource {
         std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
         let ffmpeg = locate_ffmpeg(opts.ffmpeg.as_deref())?;
         let pix_fmt = if opts.rgb { "yuv444p" } else { "yuv420p" };
+        let filters = match opts.scale {
+            Some((w, h)) => format!("scale={w}:{h}:flags=bilinear,showinfo=checksum=0"),
+            None => "showinfo=checksum=0".to_string(),
+        };
         let mut cmd = Command::new(&ffmpeg);
         cmd.args(["-nostdin", "-hide_banner", "-nostats", "-loglevel", "level+info"]);
         if opts.strict {
@@ -452,14 +459,7 @@ impl FfmpegSource {
         cmd.args(safe_input_args())
             .args(["-copyts", "-i"])
             .arg(file_url(path))
-            .args([
-                "-map",
-                "0:V:0",
-                "-vf",
-                "showinfo=checksum=0",
-                "-fps_mode",
-                "passthrough",
-            ])
+            .args(["-map", "0:V:0", "-vf", &filters, "-fps_mode", "passthrough"])
             .args(["-f", "rawvideo", "-pix_fmt", pix_fmt, "pipe:1"])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())

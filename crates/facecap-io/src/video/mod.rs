@@ -138,6 +138,7 @@ pub enum Luma {
 /// | `ffmpeg` | `None` | ffmpeg binary; `None` = [`ffmpeg::locate_ffmpeg`] | existing file |
 /// | `strict` | `true` | stop with an error at the first decode error instead of letting ffmpeg conceal it (never hands out a damaged frame) | |
 /// | `threads` | 0 | ffmpeg decoder threads (0 = ffmpeg's choice) | 0..=64 |
+/// | `scale` | `None` | video files only: ffmpeg scales every frame to this width x height (bilinear) before it reaches the pipe, so a caller that wants small frames neither moves nor converts full ones; Y4M files and images keep their size | 1..=8192 each |
 #[derive(Debug, Clone, PartialEq)]
 pub struct SourceOptions {
     /// Also produce RGB frames.
@@ -152,6 +153,8 @@ pub struct SourceOptions {
     pub strict: bool,
     /// ffmpeg decoder threads (0 = automatic).
     pub threads: u32,
+    /// Frame size ffmpeg scales video files to (see the table).
+    pub scale: Option<(u32, u32)>,
 }
 
 impl Default for SourceOptions {
@@ -163,6 +166,7 @@ impl Default for SourceOptions {
             ffmpeg: None,
             strict: true,
             threads: 0,
+            scale: None,
         }
     }
 }
@@ -178,6 +182,11 @@ impl SourceOptions {
         }
         if self.threads > MAX_THREADS {
             return Err(Error::invalid("threads", self.threads, format!("0..={MAX_THREADS}")));
+        }
+        if let Some((w, h)) = self.scale {
+            if !((1..=8192).contains(&w) && (1..=8192).contains(&h)) {
+                return Err(Error::invalid("scale", format!("{w}x{h}"), "1..=8192 pixels each"));
+            }
         }
         Ok(())
     }
