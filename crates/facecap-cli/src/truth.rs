@@ -138,7 +138,9 @@ mod fuzz {
 
     /// Three frames in the layout `facecap synth` writes (landmarks, `rel_R*`, weights).
     fn seed() -> Vec<u8> {
-        let mut cols: Vec<String> = ["frame", "timestamp", "success", "confidence"].map(String::from).to_vec();
+        let mut cols: Vec<String> = ["frame", "timestamp", "success", "confidence"]
+            .map(String::from)
+            .to_vec();
         for a in ["x", "y"] {
             cols.extend((0..NUM_LANDMARKS).map(|i| format!("{a}_{i}")));
         }
@@ -146,8 +148,16 @@ mod fuzz {
         let mut out = cols.join(",");
         out.push('\n');
         for f in 0..3 {
-            let mut row = vec![f.to_string(), format!("{:.6}", f64::from(f) / 25.0), "1".into(), "1".into()];
-            row.extend((0..2 * NUM_LANDMARKS).map(|i| format!("{:.4}", 150.0 + (i % NUM_LANDMARKS) as f64 * 3.1 + i as f64 * 0.01)));
+            let mut row = vec![
+                f.to_string(),
+                format!("{:.6}", f64::from(f) / 25.0),
+                "1".into(),
+                "1".into(),
+            ];
+            row.extend(
+                (0..2 * NUM_LANDMARKS)
+                    .map(|i| format!("{:.4}", 150.0 + (i % NUM_LANDMARKS) as f64 * 3.1 + i as f64 * 0.01)),
+            );
             row.extend(["0.01", "-0.02", "0.003", "0.4", "0.1"].map(String::from));
             out.push_str(&row.join(","));
             out.push('\n');
@@ -158,7 +168,9 @@ mod fuzz {
     fn estimates() -> Vec<Estimate> {
         (0..3)
             .map(|f| Estimate {
-                landmarks: Some(Landmarks68::from_fn(|i| (151.0 + i as f64 * 3.0, 149.0 + f as f64 + i as f64 * 0.5))),
+                landmarks: Some(Landmarks68::from_fn(|i| {
+                    (151.0 + i as f64 * 3.0, 149.0 + f as f64 + i as f64 * 0.5)
+                })),
                 weights: Some(vec![0.3, 0.2]),
                 pose: Some(ModelToCamera::identity()),
             })

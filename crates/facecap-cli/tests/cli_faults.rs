@@ -130,7 +130,9 @@ fn assert_all_complete(dir: &Path) -> Vec<PathBuf> {
 
 fn capture_cmd(clip: &Path, out: &Path) -> Command {
     let mut c = facecap();
-    c.args(["capture", "--quiet", "--jobs", "1", "--out"]).arg(out).arg(clip);
+    c.args(["capture", "--quiet", "--jobs", "1", "--out"])
+        .arg(out)
+        .arg(clip);
     c
 }
 
@@ -162,7 +164,9 @@ fn wait_for(child: &mut Child, cond: impl Fn() -> bool) -> bool {
 
 /// A temporary file of the landmarks CSV exists: tracking has started.
 fn tracking(dir: &Path) -> bool {
-    files(dir).iter().any(|r| is_temp(r) && r.to_string_lossy().contains("landmarks.csv"))
+    files(dir)
+        .iter()
+        .any(|r| is_temp(r) && r.to_string_lossy().contains("landmarks.csv"))
 }
 
 /// The CSVs are in place but not the completion marker: the preview and report are
@@ -175,7 +179,9 @@ fn writing_outputs(dir: &Path) -> bool {
 /// outputs; checks what is left and that a rerun ends like an uninterrupted run.
 fn interrupt_and_rerun(test: &str, sig: i32) {
     let tmp = tempfile::tempdir().unwrap();
-    let Some(clip) = shared_clip(test, tmp.path()) else { return };
+    let Some(clip) = shared_clip(test, tmp.path()) else {
+        return;
+    };
     let reference = tmp.path().join("ref");
     let o = capture_cmd(&clip, &reference).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
@@ -246,12 +252,18 @@ fn interrupt_and_rerun(test: &str, sig: i32) {
 
 #[test]
 fn kill_9_mid_capture_leaves_no_partial_file_and_a_rerun_completes() {
-    interrupt_and_rerun("kill_9_mid_capture_leaves_no_partial_file_and_a_rerun_completes", libc_sig::KILL);
+    interrupt_and_rerun(
+        "kill_9_mid_capture_leaves_no_partial_file_and_a_rerun_completes",
+        libc_sig::KILL,
+    );
 }
 
 #[test]
 fn sigterm_mid_capture_leaves_no_partial_file_and_a_rerun_completes() {
-    interrupt_and_rerun("sigterm_mid_capture_leaves_no_partial_file_and_a_rerun_completes", libc_sig::TERM);
+    interrupt_and_rerun(
+        "sigterm_mid_capture_leaves_no_partial_file_and_a_rerun_completes",
+        libc_sig::TERM,
+    );
 }
 
 /// Signal numbers (Linux) without a libc dependency.
@@ -269,13 +281,16 @@ fn in_mount_namespace(test: &str, script: &str) -> Option<Output> {
     match probe {
         Ok(o) if o.status.success() && String::from_utf8_lossy(&o.stdout).contains("ok") => {}
         _ => {
-            facecap_core::paths::skip(&format!(
-                "{test}: cannot make a mount namespace (unshare -rm); not run"
-            ));
+            facecap_core::paths::skip(&format!("{test}: cannot make a mount namespace (unshare -rm); not run"));
             return None;
         }
     }
-    Some(Command::new("unshare").args(["-rm", "sh", "-c", script]).output().unwrap())
+    Some(
+        Command::new("unshare")
+            .args(["-rm", "sh", "-c", script])
+            .output()
+            .unwrap(),
+    )
 }
 
 fn sh_quote(p: &Path) -> String {
@@ -301,9 +316,15 @@ fn a_full_disk_fails_clearly_and_leaves_no_partial_file() {
             bin = sh_quote(Path::new(env!("CARGO_BIN_EXE_facecap"))),
             clip = sh_quote(&clip),
         );
-        let Some(o) = in_mount_namespace(T, &script) else { return };
+        let Some(o) = in_mount_namespace(T, &script) else {
+            return;
+        };
         assert!(o.status.success(), "{size_k} KiB: script: {}", stderr(&o));
-        let rc: i32 = std::fs::read_to_string(copy.join("rc")).unwrap().trim().parse().unwrap();
+        let rc: i32 = std::fs::read_to_string(copy.join("rc"))
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap();
         let err = std::fs::read_to_string(copy.join("stderr")).unwrap();
         eprintln!("{size_k} KiB tmpfs: rc {rc}, stderr: {err}");
         assert_ne!(rc, 0, "{size_k} KiB: a capture on a full disk reported success");
@@ -340,7 +361,9 @@ fn a_read_only_output_folder_fails_clearly_and_writes_nothing() {
             r = sh_quote(&ro),
             clip = sh_quote(&clip),
         );
-        let Some(o) = in_mount_namespace(T, &script) else { return };
+        let Some(o) = in_mount_namespace(T, &script) else {
+            return;
+        };
         (o.status.code(), stderr(&o))
     } else {
         use std::os::unix::fs::PermissionsExt;
@@ -356,8 +379,15 @@ fn a_read_only_output_folder_fails_clearly_and_writes_nothing() {
         err.contains("Read-only file system") || err.contains("Permission denied"),
         "unclear error: {err}"
     );
-    assert!(err.contains(&ro.display().to_string()), "the error does not name the folder: {err}");
-    assert!(files(&ro).is_empty(), "written into a read-only folder: {:?}", files(&ro));
+    assert!(
+        err.contains(&ro.display().to_string()),
+        "the error does not name the folder: {err}"
+    );
+    assert!(
+        files(&ro).is_empty(),
+        "written into a read-only folder: {:?}",
+        files(&ro)
+    );
     assert_eq!(std::fs::read_dir(&ro).unwrap().count(), 0);
 }
 
@@ -374,7 +404,10 @@ fn an_input_deleted_mid_run_completes_or_fails_clearly() {
         .stdout(Stdio::null())
         .spawn()
         .unwrap();
-    assert!(wait_for(&mut child, || tracking(&dir)), "the capture never started tracking");
+    assert!(
+        wait_for(&mut child, || tracking(&dir)),
+        "the capture never started tracking"
+    );
     std::fs::remove_file(&input).unwrap();
     let o = child.wait_with_output().unwrap();
     let err = stderr(&o);
@@ -385,7 +418,10 @@ fn an_input_deleted_mid_run_completes_or_fails_clearly() {
         let s: Value = serde_json::from_slice(&std::fs::read(dir.join("summary.json")).unwrap()).unwrap();
         assert_eq!(s["frames"], FRAMES, "{s}");
         assert_eq!(s["undecodable_frames"], 0, "{s}");
-        let rows = std::fs::read_to_string(dir.join("landmarks.csv")).unwrap().lines().count();
+        let rows = std::fs::read_to_string(dir.join("landmarks.csv"))
+            .unwrap()
+            .lines()
+            .count();
         assert_eq!(rows, FRAMES + 1);
     } else {
         assert!(err.contains("clip.mp4"), "the error does not name the input: {err}");

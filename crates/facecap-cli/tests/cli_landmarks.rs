@@ -45,7 +45,8 @@ fn landmarks_match_hand_annotations() {
             .map(|e| e.unwrap().path())
             .filter(|p| {
                 p.with_extension("pts").is_file()
-                    && p.extension().is_some_and(|e| ["png", "jpg", "ppm"].contains(&e.to_str().unwrap_or("")))
+                    && p.extension()
+                        .is_some_and(|e| ["png", "jpg", "ppm"].contains(&e.to_str().unwrap_or("")))
             })
             .collect();
         v.sort();
@@ -85,20 +86,31 @@ fn landmarks_match_hand_annotations() {
         eprintln!("{stem}: NME {:.2} % of the inter-ocular distance", 100.0 * e);
         all.push((stem, e));
     }
-    let mean = all.iter().map(|(_, e)| e).sum::<f64>() / all.len() as f64;
-    let worst = all.iter().map(|(_, e)| *e).fold(0.0, f64::max);
+    // The annotated face is found when facecap's nearest face lies on it (NME < 0.5): the
+    // detector misses the strongly pitched HELEN face and einstein (measured 11 of 13).
+    let found: Vec<&(String, f64)> = all.iter().filter(|(_, e)| *e < 0.5).collect();
+    assert!(
+        found.len() >= MIN_FOUND,
+        "annotated face found on {} of {} images",
+        found.len(),
+        all.len()
+    );
+    let mean = found.iter().map(|(_, e)| e).sum::<f64>() / found.len() as f64;
+    let worst = found.iter().map(|(_, e)| *e).fold(0.0, f64::max);
     eprintln!(
         "landmarks vs hand annotations: {} images, mean NME {:.2} %, max {:.2} %",
         all.len(),
         100.0 * mean,
         100.0 * worst
     );
-    for (stem, e) in &all {
+    for (stem, e) in &found {
         assert!(*e < MAX_NME, "{stem}: NME {e}");
     }
     assert!(mean < MAX_MEAN_NME, "mean NME {mean}");
 }
 
-/// Bounds (measured values in docs/reliability.md).
-const MAX_NME: f64 = 1.0;
-const MAX_MEAN_NME: f64 = 1.0;
+/// Bounds; measured 2026-12-02: found 11 of 13, mean NME 2.67 %, worst 4.51 % (HELEN
+/// 79378097_5, a partial occluder).
+const MIN_FOUND: usize = 11;
+const MAX_NME: f64 = 0.07;
+const MAX_MEAN_NME: f64 = 0.04;
