@@ -533,7 +533,15 @@ pub(crate) fn capture_video(
     }
     match capture_one(video, out_dir, args, setup, &stamp, interrupted, progress) {
         Ok(v) => Outcome::Done(v),
-        Err(e) => Outcome::Failed(crate::error_text(&e)),
+        Err(e) => {
+            // Interrupted (Ctrl-C, SIGTERM, SIGHUP) after some outputs were committed (the
+            // CSVs are written before the preview): discard them too, so that an
+            // unfinished capture leaves no outputs at all, as the run says on exit.
+            if interrupted.load(Ordering::SeqCst) {
+                let _ = facecap_pipeline::resume::clear_outputs(out_dir);
+            }
+            Outcome::Failed(crate::error_text(&e))
+        }
     }
 }
 

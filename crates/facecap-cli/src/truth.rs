@@ -116,3 +116,98 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
         "rotation_error_deg_max": rot_errs.iter().copied().fold(f64::NAN, f64::max),
     })))
 }
+
+/// The mutation strategy the parser fuzz tests share.
+#[cfg(test)]
+#[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
+mod fuzz_common;
+
+/// Property-based fuzzing of the truth CSV as a capture reads it ([`validate`] first,
+/// then [`evaluate`]): every mutated file is accepted or an error, never a panic, and an
+/// accepted file never compares more frames than were estimated. Inputs tried:
+/// `fuzz::CASES`.
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::panic)]
+mod fuzz {
+    use super::fuzz_common::{config, mutated};
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Inputs tried.
+    pub const CASES: u32 = 1500;
+
+    /// Three frames in the layout `facecap synth` writes (landmarks, `rel_R*`, weights).
+    fn seed() -> Vec<u8> {
+        let mut cols: Vec<String> = ["frame", "timestamp", "success", "confidence"]
+            .map(String::from)
+            .to_vec();
+        for a in ["x", "y"] {
+            cols.extend((0..NUM_LANDMARKS).map(|i| format!("{a}_{i}")));
+        }
+        cols.extend(["rel_Rx", "rel_Ry", "rel_Rz", "jawOpen", "mouthSmileLeft"].map(String::from));
+        let mut out = cols.join(",");
+        out.push('\n');
+        for f in 0..3 {
+            let mut row = vec![
+                f.to_string(),
+                format!("{:.6}", f64::from(f) / 25.0),
+                "1".into(),
+                "1".into(),
+            ];
+            row.extend(
+                (0..2 * NUM_LANDMARKS)
+                    .map(|i| format!("{:.4}", 150.0 + (i % NUM_LANDMARKS) as f64 * 3.1 + i as f64 * 0.01)),
+            );
+            row.extend(["0.01", "-0.02", "0.003", "0.4", "0.1"].map(String::from));
+            out.push_str(&row.join(","));
+            out.push('\n');
+        }
+        out.into_bytes()
+    }
+
+    fn estimates() -> Vec<Estimate> {
+        (0..3)
+            .map(|f| Estimate {
+                landmarks: Some(Landmarks68::from_fn(|i| {
+                    (151.0 + i as f64 * 3.0, 149.0 + f as f64 + i as f64 * 0.5)
+                })),
+                weights: Some(vec![0.3, 0.2]),
+                pose: Some(ModelToCamera::identity()),
+            })
+            .collect()
+    }
+
+    fn check(dir: &Path, bytes: &[u8]) {
+        let video = dir.join("clip.y4m");
+        std::fs::write(dir.join("clip.truth.csv"), bytes).unwrap();
+        if validate(&video).is_err() {
+            return;
+        }
+        let names = ["jawOpen".to_string(), "mouthSmileLeft".to_string()];
+        if let Ok(Some(v)) = evaluate(&video, &names, &estimates()) {
+            let n = v["frames_compared"].as_u64().unwrap();
+            assert!(n <= 3, "{n} frames compared, 3 estimated");
+        }
+    }
+
+    #[test]
+    fn seed_is_valid() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("clip.truth.csv"), seed()).unwrap();
+        let video = dir.path().join("clip.y4m");
+        validate(&video).unwrap();
+        let names = ["jawOpen".to_string(), "mouthSmileLeft".to_string()];
+        let v = evaluate(&video, &names, &estimates()).unwrap().unwrap();
+        assert_eq!(v["frames_compared"], 3);
+        assert!(v["weight_rmse"].as_f64().unwrap() > 0.0);
+    }
+
+    proptest! {
+        #![proptest_config(config(CASES))]
+        #[test]
+        fn fuzz_truth_csv(b in mutated(seed())) {
+            let dir = tempfile::tempdir().unwrap();
+            check(dir.path(), &b);
+        }
+    }
+}

@@ -103,7 +103,14 @@ fn khronos_validate(test: &str, files: &[&Path]) -> bool {
     let stderr = String::from_utf8_lossy(&out.stderr);
     eprintln!("{stdout}{stderr}");
     match out.status.code() {
-        Some(0) => true,
+        Some(0) => {
+            // measured: errors=0 warnings=0 (one info) on every file facecap writes
+            for line in stdout.lines().filter(|l| l.contains("errors=")) {
+                assert!(line.contains("errors=0 warnings=0"), "Khronos glTF validator: {line}");
+            }
+            assert!(stdout.contains("errors="), "no validator summary: {stdout}");
+            true
+        }
         Some(2) => {
             facecap_core::paths::skip(&format!(
                 "{test}: glTF validator could not be installed or run: {stderr}"

@@ -159,6 +159,10 @@ fn detections_match_dlib_on_shared_images_and_frames() {
     );
     assert!(failures.is_empty(), "{}", failures.join("\n"));
     assert!(st.max_score_dev < 1e-3, "score deviation {}", st.max_score_dev);
+    // measured: every dlib box found with the same coordinates (183 of 183), no extra box
+    assert_eq!(st.exact, st.dlib_boxes, "boxes not identical to dlib's");
+    assert_eq!(st.extra, 0, "boxes dlib does not find");
+    assert!(st.min_iou >= 0.999, "min IoU {}", st.min_iou);
 }
 
 #[test]

@@ -130,8 +130,12 @@ fn matches_opencv_calc_optical_flow_pyr_lk() {
         100.0 * exact,
         100.0 * agreement
     );
-    assert!(median <= 0.05, "median {median}");
-    assert!(agreement >= 0.99, "status agreement {agreement}");
+    // measured: median 0.00004 px, p99 0.0001 px, max 0.0121 px, agreement 100 %
+    let max = diffs[diffs.len() - 1];
+    assert!(median <= 2e-4, "median {median}");
+    assert!(p99 <= 5e-4, "p99 {p99}");
+    assert!(max <= 0.03, "max {max}");
+    assert!(agreement >= 0.999, "status agreement {agreement}");
 }
 
 /// Second oracle on the same real frame pairs and points: the `optical-flow-lk` crate

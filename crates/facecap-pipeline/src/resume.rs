@@ -61,6 +61,7 @@ pub const OUTPUT_FILES: &[&str] = &[
     "tensor.csv",
     "animation.glb",
     "report.html",
+    "preview.mp4",
 ];
 
 /// Sub-folders an output folder's run owns: every file directly inside them is removed

@@ -140,7 +140,8 @@ fn against_dlib_find_min_bobyqa() {
         // the same algorithm family stops a little above the exact optimum, like dlib
         assert!(fo >= p.exact_objective - 1e-6, "problem {i}: below the exact optimum?");
         assert!(
-            fo - p.exact_objective < 5.0,
+            // measured: largest gap 1.68 (dlib's 0.54)
+            fo - p.exact_objective < 2.5,
             "problem {i}: ours {fo} exact {}",
             p.exact_objective
         );
@@ -162,6 +163,6 @@ fn against_dlib_find_min_bobyqa() {
         ours_total / n,
         dlib_total / n
     );
-    // on average within 1 objective unit of dlib's gap
-    assert!(ours_total / n <= dlib_total / n + 1.0);
+    // measured: mean gap 0.334 against dlib's 0.211
+    assert!(ours_total / n <= dlib_total / n + 0.3);
 }

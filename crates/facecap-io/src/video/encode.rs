@@ -20,6 +20,9 @@
 //!   successfully ([`FfmpegEncoder::finish`]); dropping the encoder without `finish`
 //!   kills and reaps ffmpeg and removes the temporary file, so a half-written video never
 //!   appears under its final name.
+//! * Before the rename the file's top-level MP4 boxes are checked (they must tile the
+//!   file, with the index `moov` and the samples `mdat`): on a full disk ffmpeg can exit
+//!   0 after failing to write the index, leaving a file no player opens.
 //! * ffmpeg's stderr is read by a thread (the last lines go into error messages), so a
 //!   chatty ffmpeg can never block on a full pipe.
 
@@ -326,15 +329,64 @@ impl FfmpegEncoder {
         if self.frames == 0 {
             return Err(Error::invalid("video", "no frames", "at least one frame"));
         }
+        let frames = self.frames;
+        if let Some(t) = &self.target {
+            // ffmpeg can exit 0 after failing to write the index (a full disk while
+            // `+faststart` rewrites the file): check the boxes before publishing it.
+            if let Err(why) = check_mp4_boxes(t.temp_path()) {
+                let tail = self.tail_text();
+                return Err(Error::Tool {
+                    tool: "ffmpeg".into(),
+                    reason: format!(
+                        "encoding {} left an incomplete file ({why}; is the disk full?); {tail}",
+                        self.path.display()
+                    ),
+                });
+            }
+        }
         if let Some(r) = self.reader.take() {
             let _ = r.join();
         }
-        let frames = self.frames;
         match self.target.take() {
             Some(t) => t.commit()?,
             None => return Err(Error::invalid("video", "already finished", "one finish per encoder")),
         }
         Ok(frames)
+    }
+}
+
+/// Checks that `path` is a whole MP4: top-level boxes (32- or 64-bit sizes) that tile the
+/// file exactly, `moov` (the index) and `mdat` (the samples) among them.
+fn check_mp4_boxes(path: &Path) -> std::result::Result<(), String> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let len = f.metadata().map_err(|e| e.to_string())?.len();
+    let (mut pos, mut moov, mut mdat) = (0u64, false, false);
+    while pos < len {
+        let mut h = [0u8; 16];
+        f.seek(SeekFrom::Start(pos)).map_err(|e| e.to_string())?;
+        f.read_exact(&mut h[..8])
+            .map_err(|_| format!("box header cut at byte {pos} of {len}"))?;
+        let size = match u32::from_be_bytes([h[0], h[1], h[2], h[3]]) {
+            0 => len - pos,
+            1 => {
+                f.read_exact(&mut h[8..16])
+                    .map_err(|_| format!("box header cut at byte {pos} of {len}"))?;
+                u64::from_be_bytes([h[8], h[9], h[10], h[11], h[12], h[13], h[14], h[15]])
+            }
+            s => u64::from(s),
+        };
+        if size < 8 || size > len - pos {
+            return Err(format!("box at byte {pos} claims {size} bytes, {} left", len - pos));
+        }
+        moov |= &h[4..8] == b"moov";
+        mdat |= &h[4..8] == b"mdat";
+        pos += size;
+    }
+    match (moov, mdat) {
+        (true, true) => Ok(()),
+        (false, _) => Err("no moov box".into()),
+        (_, false) => Err("no mdat box".into()),
     }
 }
 
@@ -354,6 +406,27 @@ impl Drop for FfmpegEncoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mp4_box_check_wants_whole_boxes_with_moov_and_mdat() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("b.mp4");
+        let bx = |kind: &[u8], body: usize| {
+            let mut b = ((8 + body) as u32).to_be_bytes().to_vec();
+            b.extend_from_slice(kind);
+            b.resize(8 + body, 7);
+            b
+        };
+        let whole = [bx(b"ftyp", 8), bx(b"moov", 40), bx(b"mdat", 100)].concat();
+        std::fs::write(&p, &whole).unwrap();
+        assert_eq!(check_mp4_boxes(&p), Ok(()));
+        std::fs::write(&p, &whole[..whole.len() - 1]).unwrap();
+        assert!(check_mp4_boxes(&p).unwrap_err().contains("claims"));
+        std::fs::write(&p, [bx(b"ftyp", 8), bx(b"mdat", 100)].concat()).unwrap();
+        assert_eq!(check_mp4_boxes(&p), Err("no moov box".into()));
+        std::fs::write(&p, &whole[..20]).unwrap();
+        assert!(check_mp4_boxes(&p).is_err());
+    }
 
     #[test]
     fn rejects_bad_parameters_and_sizes() {
