@@ -119,7 +119,7 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
 
 /// The mutation strategy the parser fuzz tests share.
 #[cfg(test)]
-#[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
+#[path = "../../facecap-io/tests/fuzz_common/mod.rs"]
 mod fuzz_common;
 
 /// Property-based fuzzing of the truth CSV as a capture reads it ([`validate`] first,

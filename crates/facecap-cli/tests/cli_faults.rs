@@ -96,7 +96,7 @@ fn assert_complete(path: &Path) {
             serde_json::from_slice::<Value>(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
         }
         "glb" | "gltf" => {
-            facecap_core::gltf_io::read_morph_file(path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            facecap_io::gltf_io::read_morph_file(path).unwrap_or_else(|e| panic!("{name}: {e}"));
         }
         "png" => {
             image::load_from_memory(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -110,7 +110,7 @@ fn assert_complete(path: &Path) {
             assert!(text.trim_end().ends_with("</html>"), "{name}: cut html");
         }
         "obj" => {
-            facecap_core::obj::read_obj(path).unwrap_or_else(|e| panic!("{name}: {e}"));
+            facecap_io::obj::read_obj(path).unwrap_or_else(|e| panic!("{name}: {e}"));
         }
         _ => {}
     }

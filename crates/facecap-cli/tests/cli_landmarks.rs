@@ -9,8 +9,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use facecap_core::formats::pts::read_pts;
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_io::formats::pts::read_pts;
 
 fn facecap() -> Command {
     Command::new(env!("CARGO_BIN_EXE_facecap"))

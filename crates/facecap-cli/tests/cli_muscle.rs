@@ -232,8 +232,8 @@ fn bake_writes_targets_that_move_the_face_like_their_muscles() {
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let input = facecap_core::gltf_io::read_morph_mesh(&mesh).unwrap();
-    let baked = facecap_core::gltf_io::read_morph_mesh(&rig_out).unwrap();
+    let input = facecap_io::gltf_io::read_morph_mesh(&mesh).unwrap();
+    let baked = facecap_io::gltf_io::read_morph_mesh(&rig_out).unwrap();
     assert_eq!(
         baked.base.positions, input.base.positions,
         "the mesh itself is unchanged"

@@ -6,7 +6,7 @@
 //! it reads keeps the reader's promises (landmarks finite, success rows only). Inputs
 //! tried: the case counts below.
 
-#[path = "../../facecap-core/tests/fuzz_common/mod.rs"]
+#[path = "../../facecap-io/tests/fuzz_common/mod.rs"]
 mod fuzz_common;
 
 use facecap_pipeline::openface::read_landmarks;
