@@ -96,8 +96,15 @@ fn factor_inner(a: &mut [f64], n: usize) -> Result<(), usize> {
     Ok(())
 }
 
+/// Dot product of the common prefix of `a` and `b`, with four independent accumulators so
+/// that the compiler vectorises the reduction (the kernel of the solves here and of the
+/// tensor fit's design-matrix products).
+///
+/// ```
+/// assert_eq!(facecap_geom::cholesky::dot(&[1.0, 2.0, 3.0, 4.0, 5.0], &[1.0; 5]), 15.0);
+/// ```
 #[inline(always)]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+pub fn dot(a: &[f64], b: &[f64]) -> f64 {
     // Four independent accumulators let the compiler vectorise the reduction.
     let mut acc = [0.0f64; 4];
     let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));

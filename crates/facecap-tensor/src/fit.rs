@@ -51,7 +51,7 @@
 //! allocator).
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
-use facecap_geom::{nnls, pose};
+use facecap_geom::{cholesky::dot, nnls, pose};
 use nalgebra::{Point2, Point3};
 
 use crate::error::{Error, Result};
@@ -1159,24 +1159,6 @@ impl pulp::WithSimd for Uhu<'_> {
 /// `r` rounded up to a multiple of 8 (row stride of the padded design rows).
 fn pad8(r: usize) -> usize {
     r.div_ceil(8) * 8
-}
-
-#[inline(always)]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    // Four independent accumulators let the compiler vectorise the reduction.
-    let mut acc = [0.0f64; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for j in 0..4 {
-            acc[j] += x[j] * y[j];
-        }
-    }
-    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for (x, y) in ra.iter().zip(rb) {
-        s += x * y;
-    }
-    s
 }
 
 /// `out = U^T w` for row-major `u` of shape `(rows, cols)`.
