@@ -9,63 +9,12 @@
 //! the destination mouth polygon pushed out by `margin_px` from its centroid.
 //! Images are interleaved 8-bit RGB, row-major, 0-based pixel centres.
 
-use nalgebra::{Matrix2, Point2, Vector2};
+use facecap_geom::align::umeyama2;
+use nalgebra::{Point2, Vector2};
 
 use crate::error::{Error, Result};
 use crate::features::inside;
 use crate::poisson::{clone_plane, PoissonParams, PoissonReport};
-
-/// A 2D similarity `x -> s R x + t`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Similarity2 {
-    /// `s R`.
-    pub a: Matrix2<f64>,
-    /// Translation.
-    pub t: Vector2<f64>,
-}
-
-impl Similarity2 {
-    /// Applies the transform.
-    pub fn apply(&self, p: &Point2<f64>) -> Point2<f64> {
-        Point2::from(self.a * p.coords + self.t)
-    }
-}
-
-/// Least-squares similarity taking `from[i]` to `to[i]` (Umeyama 1991 in 2D).
-///
-/// # Errors
-/// [`Error::DimensionMismatch`] for unequal lengths, [`Error::Numerical`] for fewer
-/// than 2 points or coincident points.
-pub fn similarity(from: &[Point2<f64>], to: &[Point2<f64>]) -> Result<Similarity2> {
-    if from.len() != to.len() {
-        return Err(Error::dim("similarity point count", from.len(), to.len()));
-    }
-    if from.len() < 2 {
-        return Err(Error::Numerical {
-            operation: "similarity",
-            reason: "need >= 2 points".into(),
-        });
-    }
-    let n = from.len() as f64;
-    let mf = from.iter().fold(Vector2::zeros(), |a, p| a + p.coords) / n;
-    let mt = to.iter().fold(Vector2::zeros(), |a, p| a + p.coords) / n;
-    let (mut sxx, mut a, mut b) = (0.0, 0.0, 0.0);
-    for (f, t) in from.iter().zip(to) {
-        let (df, dt) = (f.coords - mf, t.coords - mt);
-        sxx += df.norm_squared();
-        a += df.x * dt.x + df.y * dt.y;
-        b += df.x * dt.y - df.y * dt.x;
-    }
-    if sxx <= 1e-12 {
-        return Err(Error::Numerical {
-            operation: "similarity",
-            reason: "source points coincide".into(),
-        });
-    }
-    let (c, s) = (a / sxx, b / sxx);
-    let m = Matrix2::new(c, -s, s, c);
-    Ok(Similarity2 { a: m, t: mt - m * mf })
-}
 
 /// Clones the source mouth region into `target` (in place). `src_pts` are the mouth
 /// points in the source frame, `dst_pts` the corresponding points in the target frame.
@@ -91,7 +40,7 @@ pub fn clone_mouth(
     if source.len() != sw * sh * 3 {
         return Err(Error::dim("source RGB buffer", sw * sh * 3, source.len()));
     }
-    let warp = similarity(dst_pts, src_pts)?;
+    let warp = umeyama2(dst_pts, src_pts, None, true)?;
     let c = dst_pts.iter().fold(Vector2::zeros(), |a, p| a + p.coords) / dst_pts.len() as f64;
     let poly: Vec<Point2<f64>> = dst_pts
         .iter()
@@ -177,19 +126,6 @@ pub fn clone_mouth(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn similarity_recovers_a_known_transform() {
-        let from = [Point2::new(0.0, 0.0), Point2::new(10.0, 0.0), Point2::new(3.0, 7.0)];
-        let (s, th) = (1.7f64, 0.4f64);
-        let truth = Similarity2 {
-            a: Matrix2::new(s * th.cos(), -s * th.sin(), s * th.sin(), s * th.cos()),
-            t: Vector2::new(5.0, -2.0),
-        };
-        let to: Vec<_> = from.iter().map(|p| truth.apply(p)).collect();
-        let est = similarity(&from, &to).unwrap_or_else(|e| panic!("{e}"));
-        assert!((est.a - truth.a).norm() < 1e-12 && (est.t - truth.t).norm() < 1e-12);
-    }
 
     #[test]
     fn cloning_a_shifted_copy_of_the_same_image_changes_nothing() {
