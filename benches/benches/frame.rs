@@ -14,7 +14,9 @@ fn frame(c: &mut Criterion) {
     let dir = std::env::temp_dir().join(format!("facecap-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let Some(clip) = face_clip(&dir) else {
-        eprintln!("SKIP: pipeline/frame: astronaut.png not in the model cache (run scripts/setup.sh)");
+        facecap_core::paths::skip_missing_data(
+            "pipeline/frame: astronaut.png not in the model cache (run scripts/setup.sh)",
+        );
         return;
     };
     let mut group = c.benchmark_group("pipeline/frame");
@@ -27,7 +29,7 @@ fn frame(c: &mut Criterion) {
         }) {
             Ok(t) => t,
             Err(e) => {
-                eprintln!("SKIP: pipeline/frame/{name}: {e}");
+                facecap_core::paths::skip_missing_data(&format!("pipeline/frame/{name}: {e}"));
                 continue;
             }
         };

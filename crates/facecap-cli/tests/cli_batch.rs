@@ -33,7 +33,9 @@ fn inputs(test: &str) -> Option<PathBuf> {
     if ok && photo.is_file() {
         Some(photo)
     } else {
-        eprintln!("SKIP: {test}: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)");
+        facecap_core::paths::skip_missing_data(&format!(
+            "{test}: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)"
+        ));
         None
     }
 }

@@ -123,6 +123,21 @@ fn capture(data: &Path, out: &Path, extra: &[String]) -> PathBuf {
     out.join("liveportrait_d18").join("weights.csv")
 }
 
+/// `--rig` and `--landmark-map` of the shared ICT rig, or `None` (skipped) when absent.
+fn ict_rig_args(data: &Path) -> Option<Vec<String>> {
+    let ict = data.join("models3d/ict_facekit");
+    if !ict.join("ict_face_arkit53.glb").is_file() {
+        facecap_core::paths::skip_missing_data(&format!("ICT part: {} absent", ict.display()));
+        return None;
+    }
+    Some(vec![
+        "--rig".to_string(),
+        ict.join("ict_face_arkit53.glb").display().to_string(),
+        "--landmark-map".to_string(),
+        ict.join("ict_landmarks68.json").display().to_string(),
+    ])
+}
+
 #[test]
 fn weights_follow_mediapipe_on_a_real_clip() {
     let (Some(data), true) = (shared_data(), models_present()) else {
@@ -145,17 +160,9 @@ fn weights_follow_mediapipe_on_a_real_clip() {
             builtin[shape]
         );
     }
-    let ict = data.join("models3d/ict_facekit");
-    if !ict.join("ict_face_arkit53.glb").is_file() {
-        facecap_core::paths::skip_missing_data(&format!("ICT part: {} absent", ict.display()));
+    let Some(args) = ict_rig_args(&data) else {
         return;
-    }
-    let args = vec![
-        "--rig".to_string(),
-        ict.join("ict_face_arkit53.glb").display().to_string(),
-        "--landmark-map".to_string(),
-        ict.join("ict_landmarks68.json").display().to_string(),
-    ];
+    };
     let r = score(&capture(&data, &dir.path().join("ict"), &args));
     eprintln!("ICT rig: {r:?}");
     let mean = r.values().sum::<f64>() / r.len() as f64;
@@ -200,18 +207,10 @@ fn mesh_front_end_weights_follow_mediapipe() {
             builtin[shape]
         );
     }
-    let ict = data.join("models3d/ict_facekit");
-    if !ict.join("ict_face_arkit53.glb").is_file() {
-        facecap_core::paths::skip_missing_data(&format!("ICT part: {} absent", ict.display()));
+    let Some(ict) = ict_rig_args(&data) else {
         return;
-    }
-    let mut args = mesh.to_vec();
-    args.extend([
-        "--rig".to_string(),
-        ict.join("ict_face_arkit53.glb").display().to_string(),
-        "--landmark-map".to_string(),
-        ict.join("ict_landmarks68.json").display().to_string(),
-    ]);
+    };
+    let args = [mesh.to_vec(), ict].concat();
     let r = score(&capture(&data, &dir.path().join("ict"), &args));
     eprintln!("mesh, ICT rig: {r:?}");
     let mean = r.values().sum::<f64>() / r.len() as f64;

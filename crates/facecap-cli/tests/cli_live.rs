@@ -53,7 +53,9 @@ fn ffmpeg() -> Option<PathBuf> {
 fn synth_clip(dir: &Path, frames: u32, what: &str) -> Option<(PathBuf, PathBuf)> {
     let photo = cache().map(|c| c.join("data/astronaut.png")).filter(|p| p.is_file());
     let (Some(photo), true, Some(ff)) = (photo, models_present(), ffmpeg()) else {
-        eprintln!("SKIP: {what}: astronaut.png, the dlib models or ffmpeg missing (run scripts/setup.sh)");
+        facecap_core::paths::skip_missing_data(&format!(
+            "{what}: astronaut.png, the dlib models or ffmpeg missing (run scripts/setup.sh)"
+        ));
         return None;
     };
     let out = dir.join("synth");
@@ -101,7 +103,9 @@ fn live_packets_match_the_recording() {
             .is_ok_and(|s| s.success())
     });
     let Some(py) = py else {
-        eprintln!("SKIP: live_packets_match_the_recording: python-osc not in the venv (run scripts/setup.sh)");
+        facecap_core::paths::skip(
+            "live_packets_match_the_recording: python-osc not in the venv (run scripts/setup.sh)",
+        );
         return;
     };
     let t0 = Instant::now();
@@ -339,7 +343,9 @@ fn preview_window_under_xvfb() {
         .status()
         .is_ok();
     if !xvfb_ok {
-        eprintln!("SKIP: preview_window_under_xvfb: Xvfb not installed (Debian package xvfb; scripts/setup.sh)");
+        facecap_core::paths::skip(
+            "preview_window_under_xvfb: Xvfb not installed (Debian package xvfb; scripts/setup.sh)",
+        );
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -440,10 +446,7 @@ fn signals_redo_the_neutral_and_finish_the_recording() {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let pid = live.id().to_string();
-    let signal = |sig: &str| {
-        assert!(Command::new("kill").args([sig, &pid]).status().unwrap().success());
-    };
+    let pid = live.id();
     // stderr says when each neutral is applied: redo after the first, stop after the second
     let (tx, rx) = std::sync::mpsc::channel::<String>();
     let err = live.stderr.take().unwrap();
@@ -463,9 +466,9 @@ fn signals_redo_the_neutral_and_finish_the_recording() {
             .unwrap_or_else(|_| panic!("no {what} neutral within 20 s"))
     };
     eprintln!("{}", wait("first"));
-    signal("-USR1");
+    signal("-USR1", pid);
     eprintln!("{}", wait("second"));
-    signal("-TERM");
+    signal("-TERM", pid);
     let status = live.wait().unwrap();
     let stderr = reader.join().unwrap();
     assert!(status.success(), "{stderr}");
@@ -509,6 +512,26 @@ fn signals_redo_the_neutral_and_finish_the_recording() {
     );
 }
 
+/// A `udp://` URL on a local port nobody listens on: bind it, read it back, release it for
+/// the ffmpeg inside `facecap live`.
+fn free_udp_url() -> String {
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    format!("udp://127.0.0.1:{port}")
+}
+
+/// Sends `sig` (`-TERM`, `-USR1`) to process `pid` with kill(1).
+fn signal(sig: &str, pid: u32) {
+    assert!(Command::new("kill")
+        .args([sig, &pid.to_string()])
+        .status()
+        .unwrap()
+        .success());
+}
+
 /// An ffmpeg URL as the input: the clip is streamed in real time as MPEG-TS over UDP by a
 /// second ffmpeg (`ffmpeg -re -i CLIP -f mpegts udp://...`), `facecap live udp://...`
 /// receives it, and SIGTERM after the stream ends finalises the recording.
@@ -523,16 +546,10 @@ fn udp_stream_in() {
         .output()
         .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).contains("libx264"));
     if !x264 {
-        eprintln!("SKIP: udp_stream_in: this ffmpeg has no libx264 encoder");
+        facecap_core::paths::skip("udp_stream_in: this ffmpeg has no libx264 encoder");
         return;
     }
-    // a port nobody listens on: bind, read it back, release it for ffmpeg
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let url = format!("udp://127.0.0.1:{port}");
+    let url = free_udp_url();
     let rec = dir.path().join("rec");
     let mut live = facecap()
         .args(["live", "--no-window", "--json", "--out"])
@@ -568,11 +585,7 @@ fn udp_stream_in() {
     assert!(sent.success(), "the streaming ffmpeg failed");
     std::thread::sleep(Duration::from_millis(1500));
     let stopped = Instant::now();
-    assert!(Command::new("kill")
-        .args(["-TERM", &live.id().to_string()])
-        .status()
-        .unwrap()
-        .success());
+    signal("-TERM", live.id());
     let status = live.wait().unwrap();
     // the stream is silent now: the read blocked in ffmpeg's pipe must not hold the run
     assert!(
@@ -605,15 +618,10 @@ fn udp_stream_in() {
 #[test]
 fn silent_stream_stops_on_sigterm() {
     if ffmpeg().is_none() {
-        eprintln!("SKIP: silent_stream_stops_on_sigterm: ffmpeg missing (run scripts/setup.sh)");
+        facecap_core::paths::skip("silent_stream_stops_on_sigterm: ffmpeg missing (run scripts/setup.sh)");
         return;
     }
-    let port = std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let url = format!("udp://127.0.0.1:{port}");
+    let url = free_udp_url();
     let live = facecap()
         .args(["live", &url, "--no-window", "--json"])
         .stdout(Stdio::null())
@@ -622,11 +630,7 @@ fn silent_stream_stops_on_sigterm() {
         .unwrap();
     std::thread::sleep(Duration::from_millis(1500));
     let stopped = Instant::now();
-    assert!(Command::new("kill")
-        .args(["-TERM", &live.id().to_string()])
-        .status()
-        .unwrap()
-        .success());
+    signal("-TERM", live.id());
     let out = live.wait_with_output().unwrap();
     assert!(
         stopped.elapsed() < Duration::from_secs(5),

@@ -118,7 +118,9 @@ f.addEventListener('load', () => {
 fn report_loads_and_its_video_plays_in_headless_chromium() {
     const T: &str = "report_loads_and_its_video_plays_in_headless_chromium";
     let Some(browser) = find_in_path(&["chromium", "chromium-browser"]) else {
-        eprintln!("SKIP: {T}: chromium not installed (Debian: apt-get install chromium; scripts/setup.sh does)");
+        facecap_core::paths::skip(&format!(
+            "{T}: chromium not installed (Debian: apt-get install chromium; scripts/setup.sh does)"
+        ));
         return;
     };
     let photo = ["data/astronaut.png", "astronaut.png"]
@@ -126,11 +128,13 @@ fn report_loads_and_its_video_plays_in_headless_chromium() {
         .filter_map(|r| cache().map(|c| c.join(r)))
         .find(|p| p.is_file());
     let (Some(photo), true) = (photo, models_present()) else {
-        eprintln!("SKIP: {T}: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)");
+        facecap_core::paths::skip_missing_data(&format!(
+            "{T}: astronaut.png or the dlib models not in the cache (run scripts/setup.sh)"
+        ));
         return;
     };
     if facecap_io::video::ffmpeg::locate_ffmpeg(None).is_err() {
-        eprintln!("SKIP: {T}: no ffmpeg");
+        facecap_core::paths::skip(&format!("{T}: no ffmpeg"));
         return;
     }
     let dir = tempfile::tempdir().unwrap();
