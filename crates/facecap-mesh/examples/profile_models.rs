@@ -1,6 +1,8 @@
 //! Per-operator time of the two models (needs the model cache):
 //!
-//!     cargo run --release -p facecap-mesh --example profile_models
+//!     cargo run --release -p facecap-mesh --example profile_models [reps] [--layers]
+//!
+//! `--layers` also prints every step of the plan with its shapes, time and MAC rate.
 use facecap_mesh::tflite::Interpreter;
 
 /// CPU time of this thread in seconds (Linux `/proc/thread-self/schedstat`), so that
@@ -11,6 +13,9 @@ fn cpu_seconds() -> Option<f64> {
 }
 
 fn main() -> facecap_mesh::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let layers = args.iter().any(|a| a == "--layers");
+    let reps: usize = args.iter().find_map(|a| a.parse().ok()).unwrap_or(50);
     for name in [facecap_mesh::FACE_LANDMARKS_MODEL, facecap_mesh::FACE_DETECTOR_MODEL] {
         let Some(path) = facecap_core::paths::model_file_or_skip("profile_models", name) else {
             continue;
@@ -20,7 +25,6 @@ fn main() -> facecap_mesh::Result<()> {
         for (i, v) in it.input_mut(&mut ws, 0)?.iter_mut().enumerate() {
             *v = ((i * 7919) % 251) as f32 / 251.0;
         }
-        let reps: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(50);
         let mut total: Vec<(&str, f64)> = Vec::new();
         for _ in 0..reps {
             for (n, t) in it.profile(&mut ws)? {
@@ -43,6 +47,25 @@ fn main() -> facecap_mesh::Result<()> {
         println!("{name}: wall {:.3} ms{cpu} per run", run * 1e3);
         for (n, t) in total {
             println!("  {n:<20} {:.3} ms", t / reps as f64 * 1e3);
+        }
+        if layers {
+            let labels = it.step_labels();
+            // Minimum over the repetitions: the least disturbed run of each step.
+            let mut best = vec![f64::INFINITY; labels.len()];
+            for _ in 0..reps {
+                for (b, t) in best.iter_mut().zip(it.profile_steps(&mut ws)?) {
+                    *b = b.min(t);
+                }
+            }
+            for (i, ((label, macs), t)) in labels.iter().zip(&best).enumerate() {
+                let rate = if *macs > 0 {
+                    format!("{:6.2} M  {:5.1} GMAC/s", *macs as f64 * 1e-6, *macs as f64 / t * 1e-9)
+                } else {
+                    String::new()
+                };
+                println!("  {i:3} {:7.1} us  {label:<58} {rate}", t * 1e6);
+            }
+            println!("  sum of minima {:.3} ms", best.iter().sum::<f64>() * 1e3);
         }
     }
     Ok(())

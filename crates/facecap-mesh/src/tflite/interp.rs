@@ -600,6 +600,90 @@ impl Interpreter {
     }
 }
 
+impl Interpreter {
+    /// One line per step of the plan: operator kind, input and output shapes, kernel,
+    /// and the multiply-accumulates of convolutions (for per-layer profiles).
+    pub fn step_labels(&self) -> Vec<(String, usize)> {
+        self.steps
+            .iter()
+            .map(|step| {
+                let name = step_name(step);
+                match step {
+                    Step::Conv { g, w, fused, .. } => {
+                        let macs = g.oh * g.ow * w.k * w.n;
+                        (
+                            format!(
+                                "{name} {}x{}x{} -> {}x{}x{} k{}x{}/{}{}{}",
+                                g.ih,
+                                g.iw,
+                                g.ic,
+                                g.oh,
+                                g.ow,
+                                w.n,
+                                g.win.kh,
+                                g.win.kw,
+                                g.win.sh,
+                                if fused.residual.is_some() { " +add" } else { "" },
+                                match fused.post {
+                                    FusedPost::None => "",
+                                    FusedPost::Relu => " +relu",
+                                    FusedPost::Prelu(_) => " +prelu",
+                                }
+                            ),
+                            macs,
+                        )
+                    }
+                    Step::Depthwise { g, fused, .. } => (
+                        format!(
+                            "{name} {}x{}x{} -> {}x{} k{}x{}/{}{}",
+                            g.ih,
+                            g.iw,
+                            g.ic,
+                            g.oh,
+                            g.ow,
+                            g.win.kh,
+                            g.win.kw,
+                            g.win.sh,
+                            if fused.residual.is_some() { " +add" } else { "" }
+                        ),
+                        g.oh * g.ow * g.ic * g.win.kh * g.win.kw,
+                    ),
+                    Step::MaxPool { g, .. } => (format!("{name} {}x{}x{} -> {}x{}", g.ih, g.iw, g.ic, g.oh, g.ow), 0),
+                    Step::Pad { shape, pads, .. } => (format!("{name} {shape:?} {pads:?}"), 0),
+                    Step::Add { len, .. }
+                    | Step::Prelu { len, .. }
+                    | Step::Relu { len, .. }
+                    | Step::Logistic { len, .. }
+                    | Step::Copy { len, .. } => (format!("{name} {len}"), 0),
+                    Step::Concat { out_len, .. } => (format!("{name} {out_len}"), 0),
+                }
+            })
+            .collect()
+    }
+
+    /// Runs the model once and returns the seconds each step took (same order as
+    /// [`Interpreter::step_labels`]).
+    ///
+    /// # Errors
+    /// As for [`Interpreter::run`].
+    pub fn profile_steps(&self, ws: &mut Workspace) -> Result<Vec<f64>> {
+        self.check_ws(ws)?;
+        let mut times = Vec::with_capacity(self.steps.len());
+        for step in &self.steps {
+            let t0 = std::time::Instant::now();
+            let level = kernels::Level::detect();
+            let one = One { step, ws, level };
+            match level {
+                #[cfg(target_arch = "x86_64")]
+                kernels::Level::V3(simd) => pulp::Simd::vectorize(simd, one),
+                kernels::Level::Portable => pulp::Arch::new().dispatch(one),
+            }
+            times.push(t0.elapsed().as_secs_f64());
+        }
+        Ok(times)
+    }
+}
+
 fn step_name(step: &Step) -> &'static str {
     match step {
         Step::Conv { g, .. } if g.is_pointwise() => "CONV_2D 1x1",

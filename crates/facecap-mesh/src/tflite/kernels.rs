@@ -7,18 +7,23 @@
 //! Convolution is a GEMM: `out[p, co] = bias[co] + sum_k A[p, k] W[k, co]` where `A` is
 //! the input itself for 1x1 stride-1 convolutions and an im2col matrix
 //! (`k = (ky * KW + kx) * Cin + ci`) otherwise. `W` is packed at load into column panels
-//! of [`NR`] output channels (`[panel][k][NR]`, zero-padded), and a `MR x NR` register
-//! block of accumulators runs over `k` with fused multiply-adds. The kernels are written
+//! of 8, 16 or 24 output channels ([`panel_widths`]: `[panel][k][width]`, zero-padded),
+//! and an `M x width` register block of accumulators runs over `k` with fused
+//! multiply-adds (AVX2: `8 x 8`, `6 x 16` or `4 x 24`, at most twelve accumulator
+//! registers). The kernels are written
 //! as plain loops over fixed-size arrays and are compiled inside a `pulp` dispatch, so
 //! they vectorise with AVX2/FMA where the CPU has them (the interpreter calls them from
 //! one [`pulp::WithSimd`] body per inference).
 
 use super::model::{Activation, Window};
 
-/// Output channels per packed panel (two 8-lane registers).
-pub const NR: usize = 16;
-/// Rows (output pixels) per register block.
+/// Widest packed panel, in output channels (three 8-lane registers).
+pub const MAX_NR: usize = 24;
+/// Rows (output pixels) per register block of the portable kernel.
 pub const MR: usize = 4;
+/// Rows per chunk of the GEMM: every panel of a layer runs over one chunk of `A` rows
+/// (in L1) before the next chunk; a multiple of every register block's row count.
+const CHUNK: usize = 24;
 
 /// What a convolution does to its sums after the bias and fused activation: add a
 /// residual tensor of the output's shape (a following `ADD`), then apply a following
@@ -85,6 +90,36 @@ impl Epilogue<'_> {
     }
 }
 
+/// One column panel of [`Packed`] weights: output channels `c0..c0 + cols`, stored
+/// `width` wide (zero-padded past `cols`) from padded column `pc` on (weights at
+/// `data[pc * k..]` as `[k][width]`, bias at `bias[pc..pc + width]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Panel {
+    /// First output channel.
+    pub c0: usize,
+    /// Output channels held (`<= width`).
+    pub cols: usize,
+    /// Stored width: 8, 16 or 24 (one, two or three 8-lane registers).
+    pub width: usize,
+    /// Padded column of the panel's first channel.
+    pub pc: usize,
+}
+
+/// Panel widths for `n` output channels: 16-wide panels (two registers), the remainder
+/// of `n % 16 <= 8` merged into one 24-wide panel (or an 8-wide one when `n <= 8`), so
+/// that 8-, 24- and 40-channel layers multiply no zero columns.
+pub fn panel_widths(n: usize) -> Vec<usize> {
+    let (q, r) = (n / 16, n % 16);
+    let mut v = vec![16; q];
+    match r {
+        0 => {}
+        1..=8 if q > 0 => v[q - 1] = 24,
+        1..=8 => v.push(8),
+        _ => v.push(16),
+    }
+    v
+}
+
 /// Convolution weights packed for [`gemm`].
 #[derive(Debug, Clone)]
 pub struct Packed {
@@ -92,34 +127,60 @@ pub struct Packed {
     pub k: usize,
     /// Output channels.
     pub n: usize,
-    /// `[n.div_ceil(NR)][k][NR]`.
+    /// Column panels ([`panel_widths`]).
+    pub panels: Vec<Panel>,
+    /// Panel after panel, each `[k][width]`.
     pub data: Vec<f32>,
-    /// Bias, zero-padded to a multiple of `NR`.
+    /// Bias per padded column (zero in the padding).
     pub bias: Vec<f32>,
 }
 
 impl Packed {
     /// Packs OHWI filters (`n` rows of `k` values) and an optional bias.
     pub fn new(filter: &[f32], bias: Option<&[f32]>, n: usize, k: usize) -> Packed {
-        let panels = n.div_ceil(NR);
-        let mut data = vec![0.0; panels * k * NR];
-        for co in 0..n {
-            let (p, j) = (co / NR, co % NR);
-            for kk in 0..k {
-                data[(p * k + kk) * NR + j] = filter[co * k + kk];
+        let mut panels = Vec::new();
+        let (mut c0, mut pc) = (0, 0);
+        for width in panel_widths(n) {
+            let cols = (n - c0).min(width);
+            panels.push(Panel { c0, cols, width, pc });
+            c0 += cols;
+            pc += width;
+        }
+        let mut data = vec![0.0; pc * k];
+        let mut b = vec![0.0; pc];
+        for p in &panels {
+            for j in 0..p.cols {
+                let co = p.c0 + j;
+                for kk in 0..k {
+                    data[p.pc * k + kk * p.width + j] = filter[co * k + kk];
+                }
+                if let Some(bias) = bias {
+                    b[p.pc + j] = bias[co];
+                }
             }
         }
-        let mut b = vec![0.0; panels * NR];
-        if let Some(bias) = bias {
-            b[..n].copy_from_slice(&bias[..n]);
+        Packed {
+            k,
+            n,
+            panels,
+            data,
+            bias: b,
         }
-        Packed { k, n, data, bias: b }
+    }
+
+    /// Weights and bias of panel `p`.
+    #[inline(always)]
+    fn panel(&self, p: &Panel) -> (&[f32], &[f32]) {
+        (
+            &self.data[p.pc * self.k..(p.pc + p.width) * self.k],
+            &self.bias[p.pc..p.pc + p.width],
+        )
     }
 }
 
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn micro<const M: usize>(
+fn micro<const M: usize, const W: usize>(
     a: &[f32],
     lda: usize,
     panel: &[f32],
@@ -131,20 +192,20 @@ fn micro<const M: usize>(
     c0: usize,
     ncols: usize,
 ) {
-    let mut acc = [[0.0f32; NR]; M];
-    let mut b = [0.0f32; NR];
-    b.copy_from_slice(&bias[..NR]);
+    let mut acc = [[0.0f32; W]; M];
+    let mut b = [0.0f32; W];
+    b.copy_from_slice(&bias[..W]);
     for row in acc.iter_mut() {
         *row = b;
     }
-    let k = panel.len() / NR;
+    let k = panel.len() / W;
     let rows: [&[f32]; M] = std::array::from_fn(|r| &a[r * lda..r * lda + k]);
-    for (kk, w) in panel.chunks_exact(NR).enumerate() {
-        let mut wv = [0.0f32; NR];
+    for (kk, w) in panel.chunks_exact(W).enumerate() {
+        let mut wv = [0.0f32; W];
         wv.copy_from_slice(w);
         for r in 0..M {
             let x = rows[r][kk];
-            for j in 0..NR {
+            for j in 0..W {
                 acc[r][j] = x.mul_add(wv[j], acc[r][j]);
             }
         }
@@ -157,10 +218,18 @@ fn micro<const M: usize>(
 /// Applies the epilogue to one register row and stores it at `out[off..]`. A full row
 /// goes through fixed-size arrays: variable-length copies would become memmove calls.
 #[inline(always)]
-fn store(vals: &mut [f32; NR], ep: &Epilogue<'_>, out: &mut [f32], at: usize, off: usize, c0: usize, ncols: usize) {
-    if ncols == NR {
+fn store<const W: usize>(
+    vals: &mut [f32; W],
+    ep: &Epilogue<'_>,
+    out: &mut [f32],
+    at: usize,
+    off: usize,
+    c0: usize,
+    ncols: usize,
+) {
+    if ncols == W {
         ep.apply(vals, at + off, c0);
-        if let Ok(dst) = <&mut [f32; NR]>::try_from(&mut out[off..off + NR]) {
+        if let Ok(dst) = <&mut [f32; W]>::try_from(&mut out[off..off + W]) {
             *dst = *vals;
         }
     } else {
@@ -177,14 +246,11 @@ fn store(vals: &mut [f32; NR], ep: &Epilogue<'_>, out: &mut [f32], at: usize, of
 /// (the array-of-floats version of [`micro`] spills them to the stack).
 #[cfg(target_arch = "x86_64")]
 mod v3 {
-    use super::{Epilogue, Packed, NR};
+    use super::{Activation, Epilogue, Packed, Post, MAX_NR};
     use pulp::bytemuck;
     use pulp::f32x8;
     use pulp::x86::V3;
     use pulp::Simd;
-
-    /// Rows per register block (12 accumulators + 2 weights + 1 broadcast of 16 ymm).
-    pub const MR_V3: usize = 6;
 
     #[inline(always)]
     fn load(s: &[f32]) -> f32x8 {
@@ -193,9 +259,22 @@ mod v3 {
         bytemuck::cast(t)
     }
 
+    /// `x` through a fused activation, on a register.
+    #[inline(always)]
+    fn activate(simd: V3, act: Activation, x: f32x8) -> f32x8 {
+        match act {
+            Activation::None => x,
+            Activation::Relu => simd.max_f32s(x, simd.splat_f32x8(0.0)),
+            Activation::Relu6 => simd.min_f32s(simd.max_f32s(x, simd.splat_f32x8(0.0)), simd.splat_f32x8(6.0)),
+            Activation::ReluN1To1 => simd.min_f32s(simd.max_f32s(x, simd.splat_f32x8(-1.0)), simd.splat_f32x8(1.0)),
+        }
+    }
+
+    /// `M x 8V` register block over one panel: `V` weight registers and one broadcast
+    /// per `k`, `M * V` accumulators (at most 12), epilogue on the registers.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn micro<const M: usize>(
+    fn micro<const M: usize, const V: usize>(
         simd: V3,
         a: &[f32],
         lda: usize,
@@ -208,52 +287,68 @@ mod v3 {
         c0: usize,
         ncols: usize,
     ) {
-        let b0 = load(&bias[..8]);
-        let b1 = load(&bias[8..16]);
-        let mut acc = [[b0, b1]; M];
-        let k = panel.len() / NR;
+        let b: [f32x8; V] = std::array::from_fn(|j| load(&bias[8 * j..8 * j + 8]));
+        let mut acc = [b; M];
+        let k = panel.len() / (8 * V);
         let rows: [&[f32]; M] = std::array::from_fn(|r| &a[r * lda..r * lda + k]);
-        for (kk, w) in panel.chunks_exact(NR).enumerate() {
-            let w0 = load(&w[..8]);
-            let w1 = load(&w[8..16]);
+        for (kk, w) in panel.chunks_exact(8 * V).enumerate() {
+            let wv: [f32x8; V] = std::array::from_fn(|j| load(&w[8 * j..8 * j + 8]));
             for r in 0..M {
                 let x = simd.splat_f32x8(rows[r][kk]);
-                acc[r][0] = simd.mul_add_f32x8(x, w0, acc[r][0]);
-                acc[r][1] = simd.mul_add_f32x8(x, w1, acc[r][1]);
+                for j in 0..V {
+                    acc[r][j] = simd.mul_add_f32x8(x, wv[j], acc[r][j]);
+                }
             }
         }
-        for (r, row) in acc.iter().enumerate() {
-            let off = r * ldo;
-            if ncols == NR && ep.act == super::Activation::None {
-                // Vector epilogue: residual add and ReLU / PReLU on the registers.
+        if ncols == 8 * V {
+            // Vector epilogue: activation, residual add and ReLU / PReLU on the registers.
+            let zero = simd.splat_f32x8(0.0);
+            let alpha: [f32x8; V] = match ep.post {
+                Post::Prelu(al) => std::array::from_fn(|j| load(&al[c0 + 8 * j..c0 + 8 * j + 8])),
+                _ => [zero; V],
+            };
+            for (r, row) in acc.iter().enumerate() {
+                let off = r * ldo;
                 let mut v = *row;
+                for j in 0..V {
+                    v[j] = activate(simd, ep.act, v[j]);
+                }
                 if let Some(res) = ep.residual {
                     let base = at + off;
-                    v[0] = simd.add_f32s(v[0], load(&res[base..base + 8]));
-                    v[1] = simd.add_f32s(v[1], load(&res[base + 8..base + 16]));
+                    for j in 0..V {
+                        v[j] = simd.add_f32s(v[j], load(&res[base + 8 * j..base + 8 * j + 8]));
+                    }
                 }
                 match ep.post {
-                    super::Post::None => {}
-                    super::Post::Relu => {
-                        let z = simd.splat_f32x8(0.0);
-                        v[0] = simd.max_f32s(v[0], z);
-                        v[1] = simd.max_f32s(v[1], z);
+                    Post::None => {}
+                    Post::Relu => {
+                        for vj in v.iter_mut() {
+                            *vj = simd.max_f32s(*vj, zero);
+                        }
                     }
-                    super::Post::Prelu(alpha) => {
-                        let z = simd.splat_f32x8(0.0);
-                        for (j, vj) in v.iter_mut().enumerate() {
-                            let a = load(&alpha[c0 + 8 * j..c0 + 8 * j + 8]);
-                            *vj = simd.mul_add_f32x8(a, simd.min_f32s(*vj, z), simd.max_f32s(*vj, z));
+                    Post::Prelu(_) => {
+                        for (vj, aj) in v.iter_mut().zip(alpha) {
+                            *vj = simd.mul_add_f32x8(aj, simd.min_f32s(*vj, zero), simd.max_f32s(*vj, zero));
                         }
                     }
                 }
-                let vals: [f32; NR] = bytemuck::cast(v);
-                if let Ok(dst) = <&mut [f32; NR]>::try_from(&mut out[off..off + NR]) {
-                    *dst = vals;
+                for (j, vj) in v.iter().enumerate() {
+                    let vals: [f32; 8] = bytemuck::cast(*vj);
+                    if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut out[off + 8 * j..off + 8 * j + 8]) {
+                        *dst = vals;
+                    }
                 }
-            } else {
-                let mut vals: [f32; NR] = bytemuck::cast(*row);
-                super::store(&mut vals, ep, out, at, off, c0, ncols);
+            }
+        } else {
+            for (r, row) in acc.iter().enumerate() {
+                let mut vals = [0.0f32; MAX_NR];
+                for (j, vj) in row.iter().enumerate() {
+                    let t: [f32; 8] = bytemuck::cast(*vj);
+                    vals[8 * j..8 * j + 8].copy_from_slice(&t);
+                }
+                let vals = &mut vals[..ncols];
+                ep.apply(vals, at + r * ldo, c0);
+                out[r * ldo..r * ldo + ncols].copy_from_slice(vals);
             }
         }
     }
@@ -354,32 +449,70 @@ mod v3 {
         }
     }
 
-    /// [`super::gemm`] with the AVX2/FMA block.
+    /// Rows of the register block for a panel of `v` registers.
+    pub const fn block_rows(v: usize) -> usize {
+        match v {
+            1 => 8,
+            2 => 6,
+            _ => 4,
+        }
+    }
+
+    /// One panel over rows `p..p + m` (`m <= block_rows`), dispatched on the block shape.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn block<const V: usize>(
+        simd: V3,
+        m: usize,
+        a: &[f32],
+        k: usize,
+        panel: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+        at: usize,
+        n: usize,
+        c0: usize,
+        ncols: usize,
+    ) {
+        match m {
+            8 => micro::<8, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            7 => micro::<7, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            6 => micro::<6, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            5 => micro::<5, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            4 => micro::<4, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            3 => micro::<3, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            2 => micro::<2, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+            _ => micro::<1, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
+        }
+    }
+
+    /// [`super::gemm`] with the AVX2/FMA blocks: `8 x 8`, `6 x 16` or `4 x 24` by panel.
     #[inline(always)]
     pub fn gemm(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
         let (k, n) = (w.k, w.n);
-        let panels = n.div_ceil(NR);
-        let mut p = 0;
-        while p < rows {
-            let m = (rows - p).min(MR_V3);
-            let a_blk = &a[p * k..];
-            for pi in 0..panels {
-                let panel = &w.data[pi * k * NR..(pi + 1) * k * NR];
-                let bias = &w.bias[pi * NR..(pi + 1) * NR];
-                let c0 = pi * NR;
-                let ncols = (n - c0).min(NR);
-                let at = p * n + c0;
-                let o = &mut out[at..];
-                match m {
-                    6 => micro::<6>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                    5 => micro::<5>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                    4 => micro::<4>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                    3 => micro::<3>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                    2 => micro::<2>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                    _ => micro::<1>(simd, a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+        let mut p0 = 0;
+        while p0 < rows {
+            let end = (p0 + super::CHUNK).min(rows);
+            for pn in &w.panels {
+                let (panel, bias) = w.panel(pn);
+                let v = pn.width / 8;
+                let mr = block_rows(v);
+                let mut p = p0;
+                while p < end {
+                    let m = (end - p).min(mr);
+                    let a_blk = &a[p * k..];
+                    let at = p * n + pn.c0;
+                    let o = &mut out[at..];
+                    match v {
+                        1 => block::<1>(simd, m, a_blk, k, panel, bias, ep, o, at, n, pn.c0, pn.cols),
+                        2 => block::<2>(simd, m, a_blk, k, panel, bias, ep, o, at, n, pn.c0, pn.cols),
+                        _ => block::<3>(simd, m, a_blk, k, panel, bias, ep, o, at, n, pn.c0, pn.cols),
+                    }
+                    p += m;
                 }
             }
-            p += m;
+            p0 = end;
         }
     }
 }
@@ -440,26 +573,36 @@ pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'
 pub fn gemm(a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
     let (k, n) = (w.k, w.n);
     debug_assert!(a.len() >= rows * k && out.len() >= rows * n);
-    let panels = n.div_ceil(NR);
-    let mut p = 0;
-    while p < rows {
-        let m = (rows - p).min(MR);
-        let a_blk = &a[p * k..];
-        for pi in 0..panels {
-            let panel = &w.data[pi * k * NR..(pi + 1) * k * NR];
-            let bias = &w.bias[pi * NR..(pi + 1) * NR];
-            let c0 = pi * NR;
-            let ncols = (n - c0).min(NR);
-            let at = p * n + c0;
-            let o = &mut out[at..];
-            match m {
-                4 => micro::<4>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                3 => micro::<3>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                2 => micro::<2>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
-                _ => micro::<1>(a_blk, k, panel, bias, ep, o, at, n, c0, ncols),
+    let mut p0 = 0;
+    while p0 < rows {
+        let end = (p0 + CHUNK).min(rows);
+        for pn in &w.panels {
+            let (panel, bias) = w.panel(pn);
+            let mut p = p0;
+            while p < end {
+                let m = (end - p).min(MR);
+                let a_blk = &a[p * k..];
+                let at = p * n + pn.c0;
+                let o = &mut out[at..];
+                let (c0, nc) = (pn.c0, pn.cols);
+                match (pn.width, m) {
+                    (8, 4) => micro::<4, 8>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (8, 3) => micro::<3, 8>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (8, 2) => micro::<2, 8>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (8, _) => micro::<1, 8>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (16, 4) => micro::<4, 16>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (16, 3) => micro::<3, 16>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (16, 2) => micro::<2, 16>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (16, _) => micro::<1, 16>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (_, 4) => micro::<4, 24>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (_, 3) => micro::<3, 24>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (_, 2) => micro::<2, 24>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                    (_, _) => micro::<1, 24>(a_blk, k, panel, bias, ep, o, at, n, c0, nc),
+                }
+                p += m;
             }
         }
-        p += m;
+        p0 = end;
     }
 }
 
