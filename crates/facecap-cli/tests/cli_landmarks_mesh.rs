@@ -147,11 +147,63 @@ fn mesh_landmarks_csv_of_images_matches_mediapipe_image_mode() {
 }
 
 /// Video mode with `--smooth` (tracking from the previous landmarks, one-euro smoothing)
-/// against FaceLandmarker's VIDEO mode on the 30-fps clip of the fixture (its timestamps
-/// are 33 ms apart, ours 33.3 ms).
+/// against FaceLandmarker's VIDEO mode: the fixture's first 60 frames of each clip as a
+/// folder of PNGs (the fixture's own rgb24 pixels; a folder runs at 30 fps, 33.3 ms
+/// apart, the fixture's timestamps are 33 ms apart), compared on the stored frames.
 #[test]
-fn mesh_landmarks_csv_of_a_video_matches_mediapipe_video_mode() {
-    let test = "mesh_landmarks_csv_of_a_video_matches_mediapipe_video_mode";
+fn mesh_landmarks_csv_of_a_sequence_matches_mediapipe_video_mode() {
+    let test = "mesh_landmarks_csv_of_a_sequence_matches_mediapipe_video_mode";
+    if !models_present(test) {
+        return;
+    }
+    let fx = fixture();
+    for v in fx["videos"].as_array().unwrap() {
+        let name = v["clip"].as_str().unwrap();
+        let Some(clip) = facecap_core::paths::shared_data_file(test, name) else {
+            return;
+        };
+        let n = v["frames"].as_u64().unwrap();
+        let Some(frames) = rgb_frames(test, &clip, n) else {
+            return;
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let seq = dir.path().join("frames");
+        std::fs::create_dir(&seq).unwrap();
+        for (i, f) in frames.iter().enumerate() {
+            f.save(seq.join(format!("{i:04}.png"))).unwrap();
+        }
+        let out = dir.path().join("out");
+        let st = facecap()
+            .args(["landmarks", "--landmarks", "mesh", "--smooth", "--quiet", "--out"])
+            .arg(&out)
+            .arg(&seq)
+            .output()
+            .unwrap();
+        assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+        let rows = read_mesh_csv(out.join("landmarks.csv")).unwrap();
+        assert_eq!(rows.len() as u64, n, "{name}: one row per frame");
+        assert!(rows.iter().all(|r| r.success), "{name}: a face on every frame");
+        for s in v["stored"].as_array().unwrap() {
+            let i = s["frame"].as_u64().unwrap() as usize;
+            assert_eq!(rows[i].frame, i as u64);
+            check(
+                &format!("{name}#{i} (sequence)"),
+                &rows[i],
+                s["points"].as_array().unwrap(),
+                v["width"].as_f64().unwrap(),
+            );
+        }
+    }
+}
+
+/// The video file itself through facecap's decoder: its RGB is converted from the
+/// stream's Y'CbCr by facecap (BT.709 for this clip, docs/video.md), about 1.2 grey levels
+/// from ffmpeg's `rgb24` that MediaPipe was given, which moves the points by ~0.3 px mean
+/// (iris centres ~0.5 px) on the first frame. Checked: one row per frame with a face on
+/// each, and the mean and largest distance goals on the stored frames.
+#[test]
+fn mesh_landmarks_csv_of_a_video_file_is_close_to_mediapipe() {
+    let test = "mesh_landmarks_csv_of_a_video_file_is_close_to_mediapipe";
     if !models_present(test) {
         return;
     }
@@ -176,15 +228,13 @@ fn mesh_landmarks_csv_of_a_video_matches_mediapipe_video_mode() {
     let rows = read_mesh_csv(dir.path().join("landmarks.csv")).unwrap();
     assert_eq!(rows.len(), 587, "one row per frame");
     assert!(rows.iter().all(|r| r.success), "a face on every frame");
+    let k = v["width"].as_f64().unwrap() / 480.0;
     for s in v["stored"].as_array().unwrap() {
         let i = s["frame"].as_u64().unwrap() as usize;
-        assert_eq!(rows[i].frame, i as u64);
-        check(
-            &format!("liveportrait_d9#{i} (video)"),
-            &rows[i],
-            s["points"].as_array().unwrap(),
-            v["width"].as_f64().unwrap(),
-        );
+        let (mean, max, iris) = distances(rows[i].points.as_ref().unwrap(), s["points"].as_array().unwrap());
+        eprintln!("liveportrait_d9#{i} (mp4): mean {mean:.3} px, max {max:.3} px, iris {:.3} / {:.3} px", iris[0], iris[1]);
+        assert!(mean <= MEAN_PX * k, "#{i}: mean {mean} px");
+        assert!(max <= MAX_PX * k, "#{i}: max {max} px");
     }
 }
 
