@@ -36,7 +36,10 @@ fn models_present(test: &str) -> bool {
 /// The first `n` frames of `clip` as rgb24, decoded by the `ffmpeg` on PATH with the
 /// fixture script's command; `None` (with a SKIP line) without ffmpeg.
 fn rgb_frames(test: &str, clip: &Path, n: u64) -> Option<Vec<image::RgbImage>> {
-    let info = facecap_io::video::open_source(clip, &Default::default()).unwrap().info().clone();
+    let info = facecap_io::video::open_source(clip, &Default::default())
+        .unwrap()
+        .info()
+        .clone();
     let out = Command::new("ffmpeg")
         .args(["-nostdin", "-hide_banner", "-loglevel", "error", "-i"])
         .arg(clip)
@@ -78,18 +81,30 @@ fn distances(ours: &[[f32; 3]], want: &[serde_json::Value]) -> (f64, f64, [f64; 
 }
 
 fn check(what: &str, rec: &MeshRecord, want: &[serde_json::Value], width: f64) {
-    let pts = rec.points.as_ref().unwrap_or_else(|| panic!("{what}: no face in landmarks.csv"));
+    let pts = rec
+        .points
+        .as_ref()
+        .unwrap_or_else(|| panic!("{what}: no face in landmarks.csv"));
     let (mean, max, iris) = distances(pts, want);
-    eprintln!("{what}: mean {mean:.3} px, max {max:.3} px, iris {:.3} / {:.3} px", iris[0], iris[1]);
+    eprintln!(
+        "{what}: mean {mean:.3} px, max {max:.3} px, iris {:.3} / {:.3} px",
+        iris[0], iris[1]
+    );
     let k = width / 480.0;
     assert!(mean <= MEAN_PX * k, "{what}: mean {mean} px");
     assert!(max <= MAX_PX * k, "{what}: max {max} px");
     assert!(iris.iter().all(|&e| e <= IRIS_PX * k), "{what}: iris {iris:?} px");
-    assert!(rec.confidence > 0.5 && rec.confidence <= 1.0, "{what}: presence {}", rec.confidence);
+    assert!(
+        rec.confidence > 0.5 && rec.confidence <= 1.0,
+        "{what}: presence {}",
+        rec.confidence
+    );
     // z is written (relative depth, same scale as x): finite and not all equal
     let z: Vec<f32> = pts.iter().map(|p| p[2]).collect();
     assert!(z.iter().all(|v| v.is_finite()));
-    assert!(z.iter().copied().fold(f32::NEG_INFINITY, f32::max) - z.iter().copied().fold(f32::INFINITY, f32::min) > 1.0);
+    assert!(
+        z.iter().copied().fold(f32::NEG_INFINITY, f32::max) - z.iter().copied().fold(f32::INFINITY, f32::min) > 1.0
+    );
 }
 
 /// Images mode: every fixture frame of the IMAGE-mode part written as a PNG (lossless, so
@@ -143,7 +158,10 @@ fn mesh_landmarks_csv_of_images_matches_mediapipe_image_mode() {
         assert!((a.x - f64::from(b[0])).abs() < 1e-4 && (a.y - f64::from(b[1])).abs() < 1e-4);
     }
     let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
-    assert!(summary.lines().nth(1).unwrap().contains(",478,frame_00_0.pts,"), "{summary}");
+    assert!(
+        summary.lines().nth(1).unwrap().contains(",478,frame_00_0.pts,"),
+        "{summary}"
+    );
 }
 
 /// Video mode with `--smooth` (tracking from the previous landmarks, one-euro smoothing)
@@ -232,7 +250,10 @@ fn mesh_landmarks_csv_of_a_video_file_is_close_to_mediapipe() {
     for s in v["stored"].as_array().unwrap() {
         let i = s["frame"].as_u64().unwrap() as usize;
         let (mean, max, iris) = distances(rows[i].points.as_ref().unwrap(), s["points"].as_array().unwrap());
-        eprintln!("liveportrait_d9#{i} (mp4): mean {mean:.3} px, max {max:.3} px, iris {:.3} / {:.3} px", iris[0], iris[1]);
+        eprintln!(
+            "liveportrait_d9#{i} (mp4): mean {mean:.3} px, max {max:.3} px, iris {:.3} / {:.3} px",
+            iris[0], iris[1]
+        );
         assert!(mean <= MEAN_PX * k, "#{i}: mean {mean} px");
         assert!(max <= MAX_PX * k, "#{i}: max {max} px");
     }
@@ -279,7 +300,9 @@ fn mesh_front_end_runs_without_dlib_models() {
     assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
     let rows = read_mesh_csv(dir.path().join("mesh/landmarks.csv")).unwrap();
     assert_eq!(rows.len(), 3);
-    assert!(rows.iter().all(|r| r.success && r.points.as_ref().is_some_and(|p| p.len() == MESH_POINTS)));
+    assert!(rows
+        .iter()
+        .all(|r| r.success && r.points.as_ref().is_some_and(|p| p.len() == MESH_POINTS)));
     let st = run("dlib68", "dlib");
     assert!(!st.status.success(), "dlib68 ran without dlib's models");
     let err = String::from_utf8_lossy(&st.stderr);

@@ -565,7 +565,10 @@ pub fn mesh_from_table(table: &FrameTable) -> Result<Vec<MeshRecord>> {
                         if !(v.is_finite() && v.abs() <= f64::from(f32::MAX)) {
                             return Err(perr(
                                 r + 2,
-                                format!("{}_{i}: {v} is not a finite f32 in a successful row", ["x", "y", "z"][k]),
+                                format!(
+                                    "{}_{i}: {v} is not a finite f32 in a successful row",
+                                    ["x", "y", "z"][k]
+                                ),
                             ));
                         }
                         *slot = v as f32;

@@ -890,7 +890,14 @@ mod tests {
             };
             let at = |u: f64, v: f64| o + (a * u + n * v) * l;
             // almond eye: lids at v = -0.15 / +0.15 at a third and two thirds of the way
-            let contour = [at(0.0, 0.0), at(0.33, -0.15), at(0.66, -0.15), at(1.0, 0.0), at(0.66, 0.15), at(0.33, 0.15)];
+            let contour = [
+                at(0.0, 0.0),
+                at(0.33, -0.15),
+                at(0.66, -0.15),
+                at(1.0, 0.0),
+                at(0.66, 0.15),
+                at(0.33, 0.15),
+            ];
             let (u, v) = (rng.random_range(0.3..0.7), rng.random_range(-0.08..0.08));
             let e = eye_from_centre(&contour, at(u, v), eye, &p);
             assert!(e.valid(), "{e:?}");
@@ -898,17 +905,43 @@ mod tests {
             assert!((e.opening - 0.3).abs() < 1e-9 && (e.width_px - l).abs() < 1e-9);
             assert!(e.confidence > 0.0 && e.confidence <= 1.0);
             // outside the lids
-            assert_eq!(eye_from_centre(&contour, at(0.5, 0.4), eye, &p).status, EyeStatus::Implausible);
+            assert_eq!(
+                eye_from_centre(&contour, at(0.5, 0.4), eye, &p).status,
+                EyeStatus::Implausible
+            );
             // closed
-            let shut = [at(0.0, 0.0), at(0.33, -0.02), at(0.66, -0.02), at(1.0, 0.0), at(0.66, 0.02), at(0.33, 0.02)];
+            let shut = [
+                at(0.0, 0.0),
+                at(0.33, -0.02),
+                at(0.66, -0.02),
+                at(1.0, 0.0),
+                at(0.66, 0.02),
+                at(0.33, 0.02),
+            ];
             assert_eq!(eye_from_centre(&shut, at(0.5, 0.0), eye, &p).status, EyeStatus::Closed);
         }
         let tiny = [Point2::new(0.0, 0.0); 6];
-        assert_eq!(eye_from_centre(&tiny, Point2::new(0.0, 0.0), Eye::Right, &p).status, EyeStatus::TooSmall);
-        let mut bad = [Point2::new(0.0, 0.0), Point2::new(3.0, -2.0), Point2::new(6.0, -2.0), Point2::new(10.0, 0.0), Point2::new(6.0, 2.0), Point2::new(3.0, 2.0)];
-        assert_eq!(eye_from_centre(&bad, Point2::new(f64::NAN, 0.0), Eye::Right, &p).status, EyeStatus::NotFinite);
+        assert_eq!(
+            eye_from_centre(&tiny, Point2::new(0.0, 0.0), Eye::Right, &p).status,
+            EyeStatus::TooSmall
+        );
+        let mut bad = [
+            Point2::new(0.0, 0.0),
+            Point2::new(3.0, -2.0),
+            Point2::new(6.0, -2.0),
+            Point2::new(10.0, 0.0),
+            Point2::new(6.0, 2.0),
+            Point2::new(3.0, 2.0),
+        ];
+        assert_eq!(
+            eye_from_centre(&bad, Point2::new(f64::NAN, 0.0), Eye::Right, &p).status,
+            EyeStatus::NotFinite
+        );
         bad[2].x = f64::INFINITY;
-        assert_eq!(eye_from_centre(&bad, Point2::new(5.0, 0.0), Eye::Right, &p).status, EyeStatus::NotFinite);
+        assert_eq!(
+            eye_from_centre(&bad, Point2::new(5.0, 0.0), Eye::Right, &p).status,
+            EyeStatus::NotFinite
+        );
     }
 
     #[test]

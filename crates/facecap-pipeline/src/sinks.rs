@@ -5,8 +5,7 @@ use std::sync::Arc;
 
 use facecap_core::landmarks::NUM_LANDMARKS;
 use facecap_io::csv::{
-    landmark_columns, landmark_values, mesh_columns, mesh_values, FrameCsvWriter, FrameRow, LandmarkRecord,
-    MESH_POINTS,
+    landmark_columns, landmark_values, mesh_columns, mesh_values, FrameCsvWriter, FrameRow, LandmarkRecord, MESH_POINTS,
 };
 use image::GrayImage;
 

@@ -18,10 +18,10 @@ use facecap_core::landmarks::Landmarks68;
 use facecap_io::csv::LandmarkRecord;
 use facecap_io::video::{open_source, Frame, FrameSource, SourceOptions, VideoInfo};
 use facecap_landmarks::detect::FaceDetector;
+use facecap_landmarks::ert::ErtWorkspace;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
 use facecap_landmarks::gaze::{IrisEstimator, IrisFrame, IrisParams, IrisWorkspace};
 use facecap_landmarks::tracker::backends::DetectorWs;
-use facecap_landmarks::ert::ErtWorkspace;
 use facecap_landmarks::tracker::one_euro::OneEuroParams;
 use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState, TrackerWorkspace};
 
@@ -229,7 +229,11 @@ impl<'a> FrontRun<'a> {
                 Ok(())
             }
             FrontRun::Mesh {
-                tracker, ws, state, mesh, ..
+                tracker,
+                ws,
+                state,
+                mesh,
+                ..
             } => track_mesh(tracker, frame, ws, state, mesh, out),
         }
     }
@@ -668,8 +672,9 @@ impl VideoTracker {
                             front.restart();
                         }
                     }
-                    let iris = (want_iris && tracked.success && front.iris(&frame, &tracked.landmarks, &mut iris_frame))
-                        .then_some(iris_frame);
+                    let iris =
+                        (want_iris && tracked.success && front.iris(&frame, &tracked.landmarks, &mut iris_frame))
+                            .then_some(iris_frame);
                     let mesh = if want_mesh && tracked.success {
                         front.mesh_points().map(Arc::<[[f32; 3]]>::from)
                     } else {
