@@ -1,8 +1,8 @@
-//! `facecap landmarks IMAGE... [--model FILE] [--out DIR] [--draw]`.
+//! `facecap landmarks IMAGE... [--landmarks dlib68|mesh] [--model FILE] [--out DIR] [--draw]`.
 //!
-//! For every input image: detect faces (dlib-compatible HOG detector, largest
-//! first), predict landmarks with a dlib `shape_predictor` model (68 points by
-//! default), and write
+//! For every input image, with `--landmarks dlib68` (the default): detect faces
+//! (dlib-compatible HOG detector, largest first), predict landmarks with a dlib
+//! `shape_predictor` model (68 points by default), and write
 //!
 //! * `<out>/<stem>_<face>.pts` per face (`face` = 0-based index, largest face
 //!   first; iBUG `.pts`, 1-based coordinates); `<stem>` is the input's file stem,
@@ -16,12 +16,25 @@
 //! * with `--draw`, `<out>/<stem>_landmarks.png`: the image with the boxes (green)
 //!   and points (red).
 //!
+//! With `--landmarks mesh` (MediaPipe's face detector and 478-point face mesh, run afresh
+//! on every image as FaceLandmarker's IMAGE mode; one face per image, docs/mesh.md):
+//!
+//! * `<out>/landmarks.csv`: one row per input image in input order (`frame` = its 0-based
+//!   position, `timestamp` 0), `frame,timestamp,success,confidence,x_0,y_0,z_0,...,z_477`
+//!   (the 478-point layout of docs/formats.md; `confidence` = the mesh's face presence);
+//! * `<out>/<stem>_0.pts` with the 478 points (x, y), and `summary.csv` as above (the box
+//!   is the points' bounding box, `score` the detector's);
+//! * with `--draw`, the image with the 478 points.
+//!
+//! `--model`, `--box`, `--upsample`, `--ert-precision` and `--grey` are dlib's and are
+//! refused or unused with `mesh`.
+//!
 //! A damaged image fails alone (its error also on stderr); the exit code is non-zero
 //! when no image could be processed, or with `--strict` when any could not. A `--box`
 //! that does not overlap an image is that image's error.
 //!
-//! A single video input (mp4, avi, mov, mkv, webm, y4m) is handed to the video
-//! mode ([`crate::cmd_landmarks_video`]).
+//! A single video input (mp4, avi, mov, mkv, webm, y4m) or folder of images is handed to
+//! the video mode ([`crate::cmd_landmarks_video`]), which tracks it as one sequence.
 
 use facecap_landmarks::detect::Upsample;
 use std::fmt::Write as _;
@@ -49,12 +62,18 @@ pub enum GreyMode {
 /// Arguments of `facecap landmarks`.
 #[derive(Debug, clap::Args)]
 #[command(
-    after_help = "Example:\n  facecap landmarks photo.jpg --out pts/ --draw\n  facecap landmarks clip.mp4 --out tracked/"
+    after_help = "Example:\n  facecap landmarks photo.jpg --out pts/ --draw\n  facecap landmarks clip.mp4 --out tracked/\n  facecap landmarks clip.mp4 --landmarks mesh --out mesh/   # 478 points x_i,y_i,z_i"
 )]
 pub struct Args {
-    /// Input images (or one video file).
+    /// Input images (or one video file, or one folder of images tracked as a video).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
+    /// Landmark front end: `dlib68` (dlib's detector and 68-point model; `.pts` per face,
+    /// `landmarks.csv` with `x_0..x_67,y_0..y_67` for videos) or `mesh` (MediaPipe's face
+    /// detector and 478-point face mesh with irises; `landmarks.csv` with `x_i,y_i,z_i`
+    /// for the 478 points, docs/mesh.md and docs/formats.md).
+    #[arg(long, value_name = "dlib68|mesh", default_value = "dlib68")]
+    pub landmarks: facecap_pipeline::FrontEnd,
     /// dlib shape_predictor model (default: shape_predictor_68_face_landmarks.dat in
     /// the model cache).
     #[arg(long, value_name = "FILE")]
@@ -65,7 +84,8 @@ pub struct Args {
     /// Also write `<stem>_landmarks.png` with the boxes and points drawn.
     #[arg(long)]
     pub draw: bool,
-    /// Video mode: smooth landmarks with the One Euro filter (as `capture --smooth`).
+    /// Video mode: smooth landmarks with the One Euro filter (as `capture --smooth`); with
+    /// `--landmarks mesh`, MediaPipe's video-mode smoothing (FaceLandmarker's VIDEO mode).
     #[arg(long)]
     pub smooth: bool,
     /// Use this face box (dlib inclusive `left,top,right,bottom`, 0-based pixels)
@@ -109,6 +129,8 @@ pub struct VideoJob {
     pub smooth: bool,
     /// `--strict` was given (stop at the first undecodable frame).
     pub strict: bool,
+    /// `--landmarks`.
+    pub front_end: facecap_pipeline::FrontEnd,
 }
 
 fn parse_box(s: &str) -> Result<Rect, String> {
@@ -123,6 +145,12 @@ fn parse_box(s: &str) -> Result<Rect, String> {
         return Err(format!("box {s}: need right >= left and bottom >= top"));
     }
     Ok(Rect::from_dlib(l, t, r, b))
+}
+
+/// True when `path` is tracked as one sequence by the video mode: a video file or a
+/// folder (of images).
+pub fn is_sequence(path: &Path) -> bool {
+    is_video(path) || path.is_dir()
 }
 
 /// True when the path's extension names a video container.
@@ -148,7 +176,14 @@ pub fn resolve_model(model: Option<&Path>) -> anyhow::Result<PathBuf> {
 
 /// Runs `facecap landmarks`.
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    if args.inputs.len() == 1 && is_video(&args.inputs[0]) {
+    let mesh = args.landmarks == facecap_pipeline::FrontEnd::Mesh;
+    if mesh && args.model.is_some() {
+        bail!("--model names a dlib shape predictor; --landmarks mesh uses the face mesh models of the cache");
+    }
+    if mesh && args.face_box.is_some() {
+        bail!("--box is not supported with --landmarks mesh (the face mesh finds its own face region)");
+    }
+    if args.inputs.len() == 1 && is_sequence(&args.inputs[0]) {
         let job = VideoJob {
             input: args.inputs[0].clone(),
             out_dir: args.out.clone(),
@@ -158,11 +193,18 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             ert_precision: args.ert.ert_precision,
             smooth: args.smooth,
             strict: args.strict,
+            front_end: args.landmarks,
         };
         return run_video(&job);
     }
-    if let Some(v) = args.inputs.iter().find(|p| is_video(p)) {
-        bail!("{}: a video must be the only input (video mode)", v.display());
+    if let Some(v) = args.inputs.iter().find(|p| is_sequence(p)) {
+        bail!(
+            "{}: a video or a folder of images must be the only input (video mode)",
+            v.display()
+        );
+    }
+    if mesh {
+        return crate::cmd_landmarks_mesh::run_images(&args);
     }
     let model_path = resolve_model(args.model.as_deref())?;
     let sp = ShapePredictor::from_file_cached(&model_path)
@@ -337,7 +379,8 @@ fn load_grey(path: &Path, mode: GreyMode, out: &mut GrayImage) -> anyhow::Result
     Ok(())
 }
 
-fn csv_field(s: &str) -> String {
+/// A field of `summary.csv`, quoted when needed.
+pub(crate) fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {

@@ -1,15 +1,20 @@
-//! Video mode of `facecap landmarks` (tracker): `facecap landmarks VIDEO --out DIR [--draw]`.
+//! Video mode of `facecap landmarks` (tracker): `facecap landmarks VIDEO|FOLDER --out DIR
+//! [--landmarks dlib68|mesh] [--draw]`.
 //!
-//! Runs [`facecap_landmarks::tracker::LandmarkTracker`] (dlib-compatible HOG
-//! detector + ERT shape predictor + pyramidal LK, unfiltered) over every
-//! frame and writes, in `DIR`:
+//! Runs the pipeline's [`VideoTracker`] over every frame: with `dlib68` (the default)
+//! dlib-compatible HOG detector + ERT shape predictor + pyramidal LK, unfiltered; with
+//! `mesh` MediaPipe's face detector and 478-point face mesh, tracked from the previous
+//! frame's landmarks (FaceLandmarker's VIDEO mode; `--smooth` adds its one-euro
+//! smoothing). It writes, in `DIR`:
 //!
 //! * `landmarks.csv` — one row per frame, OpenFace-style columns
 //!   `frame,timestamp,success,confidence,x_0..x_67,y_0..y_67` (0-based pixels,
 //!   centre of the top-left pixel = (0, 0); `nan` where `success` is 0), written
-//!   atomically (the file appears only when the run completes);
+//!   atomically (the file appears only when the run completes); with `mesh` the 478
+//!   points `x_0,y_0,z_0,...,z_477` instead (docs/formats.md), `confidence` the face
+//!   presence;
 //! * with `--draw`, `frames/frame_NNNNNN.png`: each frame in grey with the points
-//!   (red, on frames with a face) and the ERT box (green).
+//!   (red, on frames with a face; all 478 with `mesh`) and the box (green).
 //!
 //! A progress bar is shown only when stderr is a terminal.
 
@@ -18,7 +23,9 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use facecap_core::landmarks::{Landmarks68, Rect};
-use facecap_pipeline::{FrameImages, LandmarkCsvSink, RunControl, Sink, TrackedFace, TrackerPolicy, VideoTracker};
+use facecap_pipeline::{
+    FrameImages, FrontEnd, LandmarkCsvSink, LandmarkLayout, RunControl, Sink, TrackedFace, TrackerPolicy, VideoTracker,
+};
 use image::{GrayImage, Rgb, RgbImage};
 
 use crate::cmd_landmarks::VideoJob;
@@ -28,6 +35,8 @@ use crate::cmd_landmarks::VideoJob;
 struct DrawSink {
     dir: PathBuf,
     canvas: RgbImage,
+    /// Draw the 478 mesh points instead of the 68.
+    mesh: bool,
 }
 
 impl Sink for DrawSink {
@@ -37,6 +46,10 @@ impl Sink for DrawSink {
 
     fn images(&self) -> FrameImages {
         FrameImages::Every
+    }
+
+    fn wants_mesh(&self) -> bool {
+        self.mesh
     }
 
     fn frame(&mut self, face: &TrackedFace) -> facecap_pipeline::Result<()> {
@@ -59,20 +72,27 @@ pub fn run(job: &VideoJob) -> anyhow::Result<ExitCode> {
         shape_model: job.model.clone(),
         upsample: job.upsample,
         ert_precision: job.ert_precision,
-        ..TrackerPolicy::default()
+        front_end: job.front_end,
     })?;
-    let source = facecap_pipeline::open_video_with(&job.input, 1, job.strict)
+    let mesh = job.front_end == FrontEnd::Mesh;
+    let source = facecap_pipeline::open_video_rgb(&job.input, 1, job.strict, tracker.needs_rgb())
         .with_context(|| format!("opening {}", job.input.display()))?;
     let frame_count = source.info().frame_count;
     std::fs::create_dir_all(&job.out_dir).with_context(|| format!("creating {}", job.out_dir.display()))?;
     let csv_path = job.out_dir.join("landmarks.csv");
-    let mut csv = LandmarkCsvSink::create(&csv_path)?;
+    let layout = if mesh {
+        LandmarkLayout::Mesh478
+    } else {
+        LandmarkLayout::Ibug68
+    };
+    let mut csv = LandmarkCsvSink::create_with(&csv_path, layout)?;
     let mut drawer = if job.draw {
         let dir = job.out_dir.join("frames");
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         Some(DrawSink {
             dir,
             canvas: RgbImage::new(0, 0),
+            mesh,
         })
     } else {
         None
@@ -148,14 +168,25 @@ fn draw(gray: &GrayImage, f: &TrackedFace, canvas: &mut RgbImage) {
             put(r, y, Rgb([0, 255, 0]));
         }
     }
-    if let Some(l) = f.landmarks.as_ref() {
-        let c: Rgb<u8> = Rgb([255, 0, 0]);
-        let l: &Landmarks68 = l;
-        for p in l.points.iter() {
-            let (x, y) = (p.x.round() as i64, p.y.round() as i64);
-            for (dx, dy) in [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)] {
-                put(x + dx, y + dy, c);
+    let c: Rgb<u8> = Rgb([255, 0, 0]);
+    let mut cross = |x: f64, y: f64| {
+        let (x, y) = (x.round() as i64, y.round() as i64);
+        for (dx, dy) in [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)] {
+            put(x + dx, y + dy, c);
+        }
+    };
+    match (f.mesh.as_deref(), f.landmarks.as_ref()) {
+        (Some(mesh), Some(_)) => {
+            for p in mesh {
+                cross(f64::from(p[0]), f64::from(p[1]));
             }
         }
+        (None, Some(l)) => {
+            let l: &Landmarks68 = l;
+            for p in l.points.iter() {
+                cross(p.x, p.y);
+            }
+        }
+        _ => {}
     }
 }

@@ -19,6 +19,7 @@ mod cmd_batch;
 mod cmd_capture;
 mod cmd_info;
 mod cmd_landmarks;
+mod cmd_landmarks_mesh;
 mod cmd_landmarks_video;
 mod cmd_live;
 mod cmd_muscle;

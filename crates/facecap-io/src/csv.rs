@@ -17,6 +17,10 @@
 //! Column groups used across facecap (build the list with these helpers):
 //! * landmarks: [`landmark_columns`] = `x_0..x_67,y_0..y_67` (OpenFace order: all
 //!   x, then all y; 0-based pixels, centre of the top-left pixel = (0, 0));
+//! * face mesh: [`mesh_columns`] = `x_0,y_0,z_0,x_1,y_1,z_1,...,z_477` (the 478 points of
+//!   the face mesh front end, point by point; x and y as the landmarks, z the model's
+//!   relative depth in the same pixel scale as x, negative towards the camera); read with
+//!   [`read_mesh_csv`], which checks that exactly the 478 points are there;
 //! * head pose: [`POSE_COLUMNS`] = `pose_Tx,pose_Ty,pose_Tz,pose_Rx,pose_Ry,pose_Rz`;
 //! * blendshape weights / other named values: [`named_columns`] (names used verbatim).
 //!
@@ -70,6 +74,17 @@ pub fn landmark_columns() -> Vec<String> {
     (0..NUM_LANDMARKS)
         .map(|i| format!("x_{i}"))
         .chain((0..NUM_LANDMARKS).map(|i| format!("y_{i}")))
+        .collect()
+}
+
+/// Points of the face mesh layout ([`mesh_columns`]): MediaPipe's 468 face points and
+/// 10 iris points (468 and 473 are the iris centres).
+pub const MESH_POINTS: usize = 478;
+
+/// `x_i,y_i,z_i` for each mesh point `i = 0..478`, point by point.
+pub fn mesh_columns() -> Vec<String> {
+    (0..MESH_POINTS)
+        .flat_map(|i| [format!("x_{i}"), format!("y_{i}"), format!("z_{i}")])
         .collect()
 }
 
@@ -298,6 +313,21 @@ pub struct LandmarkRecord {
     pub landmarks: Option<Landmarks68>,
 }
 
+/// One row of a face mesh CSV ([`mesh_columns`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshRecord {
+    /// Frame index.
+    pub frame: u64,
+    /// Timestamp in seconds.
+    pub timestamp: f64,
+    /// Success flag.
+    pub success: bool,
+    /// Confidence.
+    pub confidence: f64,
+    /// The [`MESH_POINTS`] points `[x, y, z]`; `None` for rows with `success = 0`.
+    pub points: Option<Vec<[f32; 3]>>,
+}
+
 /// Reads a per-frame CSV written by [`FrameCsvWriter`] (or any CSV with the same
 /// header convention; spaces around fields and `\r\n` line ends are accepted).
 ///
@@ -429,6 +459,16 @@ pub fn read_landmarks_csv(path: impl AsRef<Path>) -> Result<Vec<LandmarkRecord>>
 /// # Errors
 /// As [`read_landmarks_csv`] (errors carry an empty path).
 pub fn landmarks_from_table(table: &FrameTable) -> Result<Vec<LandmarkRecord>> {
+    if table.column_index(&format!("x_{NUM_LANDMARKS}")).is_some() || table.column_index("z_0").is_some() {
+        return Err(Error::parse(
+            FORMAT,
+            "",
+            format!(
+                "a face mesh CSV (column x_{NUM_LANDMARKS} or z_0), not the 68-point landmark layout; \
+                 its x_0..y_67 are mesh points, not iBUG points"
+            ),
+        ));
+    }
     let names = landmark_columns();
     let idx: Vec<usize> = names
         .iter()
@@ -460,6 +500,147 @@ pub fn landmarks_from_table(table: &FrameTable) -> Result<Vec<LandmarkRecord>> {
             })
         })
         .collect()
+}
+
+/// Reads a face mesh CSV ([`mesh_columns`], anywhere among the value columns). Rows with
+/// `success = 1` must have [`MESH_POINTS`] finite points; rows with `success = 0` give
+/// `None`.
+///
+/// # Errors
+/// As [`read_frame_csv`]; also [`Error::Parse`] when a mesh column is missing, when the
+/// file has points beyond the mesh's (a column `x_478`, `y_478` or `z_478`), or when a
+/// successful row has a NaN value or one outside the range of `f32` (naming the line).
+pub fn read_mesh_csv(path: impl AsRef<Path>) -> Result<Vec<MeshRecord>> {
+    let path = path.as_ref();
+    let table = read_frame_csv(path)?;
+    mesh_from_table(&table).map_err(|e| match e {
+        Error::Parse { format, reason, .. } => Error::Parse {
+            format,
+            path: path.to_path_buf(),
+            reason,
+        },
+        other => other,
+    })
+}
+
+/// Extracts the mesh points from a parsed table (see [`read_mesh_csv`]).
+///
+/// # Errors
+/// As [`read_mesh_csv`] (errors carry an empty path).
+pub fn mesh_from_table(table: &FrameTable) -> Result<Vec<MeshRecord>> {
+    for axis in ["x", "y", "z"] {
+        let extra = format!("{axis}_{MESH_POINTS}");
+        if table.column_index(&extra).is_some() {
+            return Err(Error::parse(
+                FORMAT,
+                "",
+                format!("column {extra}: more than the {MESH_POINTS} points of the face mesh"),
+            ));
+        }
+    }
+    let idx: Vec<usize> = mesh_columns()
+        .iter()
+        .map(|n| {
+            table.column_index(n).ok_or_else(|| {
+                Error::parse(
+                    FORMAT,
+                    "",
+                    format!("face mesh column {n} missing ({MESH_POINTS} points x_i,y_i,z_i expected)"),
+                )
+            })
+        })
+        .collect::<Result<_>>()?;
+    table
+        .rows
+        .iter()
+        .enumerate()
+        .map(|(r, row)| {
+            let points = if row.success {
+                let mut pts = Vec::with_capacity(MESH_POINTS);
+                for (i, c) in idx.chunks_exact(3).enumerate() {
+                    let mut p = [0.0f32; 3];
+                    for (k, (slot, &j)) in p.iter_mut().zip(c).enumerate() {
+                        let v = row.values[j];
+                        // within f32's range, so the narrowing below is exact for our own files
+                        if !(v.is_finite() && v.abs() <= f64::from(f32::MAX)) {
+                            return Err(perr(
+                                r + 2,
+                                format!(
+                                    "{}_{i}: {v} is not a finite f32 in a successful row",
+                                    ["x", "y", "z"][k]
+                                ),
+                            ));
+                        }
+                        *slot = v as f32;
+                    }
+                    pts.push(p);
+                }
+                Some(pts)
+            } else {
+                None
+            };
+            Ok(MeshRecord {
+                frame: row.frame,
+                timestamp: row.timestamp,
+                success: row.success,
+                confidence: row.confidence,
+                points,
+            })
+        })
+        .collect()
+}
+
+/// Mesh values in [`mesh_columns`] order for [`FrameRow::values`]; `None` gives NaNs (a
+/// failed frame). Each `f32` is written as the `f64` of its shortest decimal form
+/// (`0.1f32` becomes `0.1`, not `0.10000000149011612`), so the file stays short and
+/// reading a value back and narrowing it to `f32` gives the same bits.
+///
+/// # Errors
+/// [`Error::DimensionMismatch`] when `points` does not have [`MESH_POINTS`] points or
+/// `out` does not have `3 * MESH_POINTS` values.
+pub fn mesh_values(points: Option<&[[f32; 3]]>, out: &mut [f64]) -> Result<()> {
+    if out.len() != 3 * MESH_POINTS {
+        return Err(Error::DimensionMismatch {
+            what: "face mesh CSV values".into(),
+            expected: 3 * MESH_POINTS,
+            got: out.len(),
+        });
+    }
+    let Some(points) = points else {
+        out.fill(f64::NAN);
+        return Ok(());
+    };
+    if points.len() != MESH_POINTS {
+        return Err(Error::DimensionMismatch {
+            what: "face mesh points".into(),
+            expected: MESH_POINTS,
+            got: points.len(),
+        });
+    }
+    for (o, v) in out.iter_mut().zip(points.iter().flatten()) {
+        *o = shortest_f64(*v);
+    }
+    Ok(())
+}
+
+/// The `f64` whose shortest form is the shortest form of `v` (no allocation: formats into
+/// a stack buffer). Non-finite values are passed through.
+fn shortest_f64(v: f32) -> f64 {
+    if !v.is_finite() {
+        return f64::from(v);
+    }
+    let mut buf = [0u8; 64];
+    let mut cur = std::io::Cursor::new(&mut buf[..]);
+    // `{}` of a finite f32 has at most ~48 characters (no exponent form); on any
+    // failure the exact widening is the fallback
+    if write!(cur, "{v}").is_err() {
+        return f64::from(v);
+    }
+    let n = cur.position() as usize;
+    std::str::from_utf8(&buf[..n])
+        .ok()
+        .and_then(|t| t.parse::<f64>().ok())
+        .unwrap_or(f64::from(v))
 }
 
 /// Landmark values in [`landmark_columns`] order (all x, then all y), for

@@ -9,8 +9,8 @@ use std::cell::Cell;
 use facecap_core::landmarks::Landmarks68;
 use facecap_core::Error;
 use facecap_io::csv::{
-    landmark_columns, landmark_values, named_columns, parse_frame_csv, read_frame_csv, read_landmarks_csv,
-    FrameCsvWriter, FrameRow, POSE_COLUMNS,
+    landmark_columns, landmark_values, mesh_columns, mesh_values, named_columns, parse_frame_csv, read_frame_csv,
+    read_landmarks_csv, read_mesh_csv, FrameCsvWriter, FrameRow, MESH_POINTS, POSE_COLUMNS,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -303,4 +303,141 @@ fn landmark_csv_rules() {
     let q = dir.path().join("nolm.csv");
     std::fs::write(&q, GOOD).unwrap();
     assert!(matches!(read_landmarks_csv(&q), Err(Error::Parse { .. })));
+}
+
+/// A seeded mesh of 478 points with awkward f32 values (many digits, tiny, negative zero).
+fn random_mesh(rng: &mut ChaCha8Rng) -> Vec<[f32; 3]> {
+    (0..MESH_POINTS)
+        .map(|i| match i % 97 {
+            0 => [f32::MIN_POSITIVE, -0.0, 1.0e-40],
+            1 => [0.1, 1.0e7 + 1.0, -123.456_79],
+            _ => [
+                rng.random_range(-50.0f32..700.0),
+                rng.random_range(-50.0f32..500.0),
+                rng.random_range(-80.0f32..80.0),
+            ],
+        })
+        .collect()
+}
+
+/// The 478-point layout: the writer's values read back bit for bit (as f32), failed rows
+/// give `None`, and the reader checks the sizes: a missing point, an extra point, a
+/// 68-point file and a mesh file given to the 68-point reader are all errors.
+#[test]
+fn mesh_csv_round_trip_and_size_checks() {
+    let cols = mesh_columns();
+    assert_eq!(cols.len(), 3 * MESH_POINTS);
+    assert_eq!(&cols[..4], ["x_0", "y_0", "z_0", "x_1"]);
+    assert_eq!(cols[3 * 468], "x_468");
+    assert_eq!(cols[cols.len() - 1], "z_477");
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("mesh.csv");
+    let mut rng = ChaCha8Rng::seed_from_u64(478);
+    let mut w = FrameCsvWriter::create(&p, &cols).unwrap();
+    let mut values = vec![0.0; 3 * MESH_POINTS];
+    let mut expected = Vec::new();
+    for f in 0..40u64 {
+        let mesh = (f % 5 != 2).then(|| random_mesh(&mut rng));
+        mesh_values(mesh.as_deref(), &mut values).unwrap();
+        w.write_row(&FrameRow {
+            frame: f,
+            timestamp: f as f64 / 25.0,
+            success: mesh.is_some(),
+            confidence: if mesh.is_some() { 0.9 } else { 0.0 },
+            values: &values,
+        })
+        .unwrap();
+        expected.push(mesh);
+    }
+    w.finish().unwrap();
+    // the shortest f32 form keeps rows short: 0.1f32 is written 0.1, not 0.10000000149...
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert!(text.lines().nth(1).unwrap().contains(",0.1,"), "shortest form");
+    let back = read_mesh_csv(&p).unwrap();
+    assert_eq!(back.len(), expected.len());
+    for (r, want) in back.iter().zip(&expected) {
+        assert_eq!(r.success, want.is_some());
+        match (&r.points, want) {
+            (Some(got), Some(want)) => {
+                for (g, w) in got.iter().zip(want) {
+                    for (a, b) in g.iter().zip(w) {
+                        assert_eq!(a.to_bits(), b.to_bits(), "frame {}: {a} vs {b}", r.frame);
+                    }
+                }
+            }
+            (None, None) => {}
+            other => panic!("frame {}: {other:?}", r.frame),
+        }
+    }
+    // wrong sizes on the writing side
+    assert!(mesh_values(Some(&[[0.0; 3]; 68]), &mut values).is_err());
+    assert!(mesh_values(None, &mut values[..10]).is_err());
+    // the 68-point reader refuses a mesh file (its x_0..y_67 are not iBUG points)
+    match read_landmarks_csv(&p) {
+        Err(Error::Parse { reason, .. }) => assert!(reason.contains("face mesh"), "{reason}"),
+        other => panic!("{other:?}"),
+    }
+    // a file with one point missing, one with a point too many, a 68-point file
+    let rows = |cols: &[String]| {
+        let mut s = format!("frame,timestamp,success,confidence,{}\n", cols.join(","));
+        s.push_str("0,0,1,1");
+        for _ in cols {
+            s.push_str(",1.5");
+        }
+        s.push('\n');
+        s
+    };
+    let short: Vec<String> = cols.iter().filter(|c| *c != "y_477").cloned().collect();
+    let long: Vec<String> = cols.iter().cloned().chain(["x_478".to_string()]).collect();
+    for (name, body, want) in [
+        ("short.csv", rows(&short), "y_477 missing"),
+        ("long.csv", rows(&long), "x_478"),
+        ("ibug.csv", rows(&landmark_columns()), "z_0 missing"),
+    ] {
+        let q = dir.path().join(name);
+        std::fs::write(&q, body).unwrap();
+        match read_mesh_csv(&q) {
+            Err(Error::Parse { reason, path, .. }) => {
+                assert!(reason.contains(want), "{name}: {reason}");
+                assert_eq!(path, q);
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+    // a NaN point in a successful row is refused with its line
+    let q = dir.path().join("nan.csv");
+    std::fs::write(&q, rows(&cols).replacen(",1.5", ",nan", 1)).unwrap();
+    match read_mesh_csv(&q) {
+        Err(Error::Parse { reason, .. }) => assert!(reason.contains("line 2") && reason.contains("x_0"), "{reason}"),
+        other => panic!("{other:?}"),
+    }
+    // the full file through the generic reader: 1434 value columns
+    assert_eq!(read_frame_csv(&p).unwrap().columns.len(), 3 * MESH_POINTS);
+}
+
+/// Every f32 written by `mesh_values` reads back to the same bits (seeded bit patterns over
+/// the whole finite range, so the shortest-form conversion is checked beyond the mesh's
+/// usual pixel values).
+#[test]
+fn mesh_values_round_trip_any_finite_f32() {
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut values = vec![0.0; 3 * MESH_POINTS];
+    for _ in 0..200 {
+        let mesh: Vec<[f32; 3]> = (0..MESH_POINTS)
+            .map(|_| {
+                std::array::from_fn(|_| loop {
+                    let v = f32::from_bits(rng.random());
+                    if v.is_finite() {
+                        break v;
+                    }
+                })
+            })
+            .collect();
+        mesh_values(Some(&mesh), &mut values).unwrap();
+        for (v, p) in values.iter().zip(mesh.iter().flatten()) {
+            let text = format!("{v}");
+            let back: f64 = text.parse().unwrap();
+            assert_eq!((back as f32).to_bits(), p.to_bits(), "{p:e} -> {text}");
+        }
+    }
 }

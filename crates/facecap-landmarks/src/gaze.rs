@@ -625,6 +625,68 @@ fn point_in_polygon(poly: &[[f64; 2]; 6], x: f64, y: f64) -> bool {
     inside
 }
 
+/// One eye's estimate from an iris centre measured by a landmark model (the face mesh's
+/// iris landmarks) instead of the grey frame: the eye frame `(u, v)`, the opening and the
+/// validity rules of [`IrisEstimator`] (`NotFinite`, `TooSmall`, `Closed`, and
+/// `Implausible` for a centre outside the eye polygon dilated by `mask_margin`), without
+/// the image tests (contrast, image bounds), which have no meaning here.
+///
+/// `contour` is the eye's outline in the iBUG walk order: outer corner, upper lid (outer,
+/// inner), inner corner, lower lid (inner, outer); `centre` is the iris centre; both in
+/// image pixels. `confidence` is `min(1, opening / (2 min_opening))` for a valid eye.
+/// Never panics; non-finite input gives an invalid eye.
+pub fn eye_from_centre(contour: &[Point2<f64>; 6], centre: Point2<f64>, eye: Eye, params: &IrisParams) -> EyeEstimate {
+    let mut est = EyeEstimate::default();
+    let finite = |q: &Point2<f64>| q.x.is_finite() && q.y.is_finite();
+    if !contour.iter().all(finite) || !finite(&centre) {
+        est.status = EyeStatus::NotFinite;
+        return est;
+    }
+    let (o, i) = (contour[0], contour[3]);
+    let l = (i - o).norm();
+    est.width_px = l;
+    if l.is_nan() || l < params.min_eye_width_px {
+        est.status = EyeStatus::TooSmall;
+        return est;
+    }
+    let a = (i - o) / l;
+    let n = match eye {
+        Eye::Right => Vector2::new(-a.y, a.x),
+        Eye::Left => Vector2::new(a.y, -a.x),
+    };
+    est.opening = ((contour[1] - contour[5]).norm() + (contour[2] - contour[4]).norm()) / (2.0 * l);
+    if est.opening < params.min_opening {
+        est.status = EyeStatus::Closed;
+        return est;
+    }
+    let uv = |q: Point2<f64>| {
+        let d = q - o;
+        [d.dot(&a) / l, d.dot(&n) / l]
+    };
+    let mut poly = contour.map(uv);
+    let cu = poly.iter().map(|q| q[0]).sum::<f64>() / 6.0;
+    let cv = poly.iter().map(|q| q[1]).sum::<f64>() / 6.0;
+    for q in &mut poly {
+        let (du, dv) = (q[0] - cu, q[1] - cv);
+        let r = (du * du + dv * dv).sqrt();
+        if r > 0.0 {
+            q[0] += du / r * params.mask_margin;
+            q[1] += dv / r * params.mask_margin;
+        }
+    }
+    let [u, v] = uv(centre);
+    if !point_in_polygon(&poly, u, v) {
+        est.status = EyeStatus::Implausible;
+        return est;
+    }
+    est.centre = centre;
+    est.u = u;
+    est.v = v;
+    est.confidence = (est.opening / (2.0 * params.min_opening.max(1e-9))).min(1.0);
+    est.status = EyeStatus::Valid;
+    est
+}
+
 /// ARKit names of the weights [`gaze_weights`] returns, in its order.
 pub const GAZE_WEIGHT_NAMES: [&str; 8] = [
     "eyeLookInLeft",
@@ -807,6 +869,79 @@ mod tests {
             }
         }
         assert!(inside_count > 10_000, "{inside_count}");
+    }
+
+    /// `eye_from_centre` puts a centre at known `(u, v)` of a drawn eye back at them, for
+    /// both eyes and any roll, and reports closed, tiny, non-finite and outside eyes.
+    #[test]
+    fn eye_from_centre_recovers_known_offsets() {
+        let p = IrisParams::default();
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for _ in 0..200 {
+            let eye = if rng.random::<bool>() { Eye::Right } else { Eye::Left };
+            let roll: f64 = rng.random_range(-0.5..0.5);
+            let l: f64 = rng.random_range(10.0..80.0);
+            let o = Point2::new(rng.random_range(0.0..500.0), rng.random_range(0.0..500.0));
+            let sign = if eye == Eye::Right { 1.0 } else { -1.0 };
+            let a = Vector2::new(sign * roll.cos(), sign * roll.sin());
+            let n = match eye {
+                Eye::Right => Vector2::new(-a.y, a.x),
+                Eye::Left => Vector2::new(a.y, -a.x),
+            };
+            let at = |u: f64, v: f64| o + (a * u + n * v) * l;
+            // almond eye: lids at v = -0.15 / +0.15 at a third and two thirds of the way
+            let contour = [
+                at(0.0, 0.0),
+                at(0.33, -0.15),
+                at(0.66, -0.15),
+                at(1.0, 0.0),
+                at(0.66, 0.15),
+                at(0.33, 0.15),
+            ];
+            let (u, v) = (rng.random_range(0.3..0.7), rng.random_range(-0.08..0.08));
+            let e = eye_from_centre(&contour, at(u, v), eye, &p);
+            assert!(e.valid(), "{e:?}");
+            assert!((e.u - u).abs() < 1e-9 && (e.v - v).abs() < 1e-9, "{e:?} vs {u} {v}");
+            assert!((e.opening - 0.3).abs() < 1e-9 && (e.width_px - l).abs() < 1e-9);
+            assert!(e.confidence > 0.0 && e.confidence <= 1.0);
+            // outside the lids
+            assert_eq!(
+                eye_from_centre(&contour, at(0.5, 0.4), eye, &p).status,
+                EyeStatus::Implausible
+            );
+            // closed
+            let shut = [
+                at(0.0, 0.0),
+                at(0.33, -0.02),
+                at(0.66, -0.02),
+                at(1.0, 0.0),
+                at(0.66, 0.02),
+                at(0.33, 0.02),
+            ];
+            assert_eq!(eye_from_centre(&shut, at(0.5, 0.0), eye, &p).status, EyeStatus::Closed);
+        }
+        let tiny = [Point2::new(0.0, 0.0); 6];
+        assert_eq!(
+            eye_from_centre(&tiny, Point2::new(0.0, 0.0), Eye::Right, &p).status,
+            EyeStatus::TooSmall
+        );
+        let mut bad = [
+            Point2::new(0.0, 0.0),
+            Point2::new(3.0, -2.0),
+            Point2::new(6.0, -2.0),
+            Point2::new(10.0, 0.0),
+            Point2::new(6.0, 2.0),
+            Point2::new(3.0, 2.0),
+        ];
+        assert_eq!(
+            eye_from_centre(&bad, Point2::new(f64::NAN, 0.0), Eye::Right, &p).status,
+            EyeStatus::NotFinite
+        );
+        bad[2].x = f64::INFINITY;
+        assert_eq!(
+            eye_from_centre(&bad, Point2::new(5.0, 0.0), Eye::Right, &p).status,
+            EyeStatus::NotFinite
+        );
     }
 
     #[test]

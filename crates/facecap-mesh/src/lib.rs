@@ -7,6 +7,8 @@
 //! * [`roi`]: rotated regions and the image-to-tensor warp.
 //! * [`tracker`]: [`MeshTracker`], detection + landmarks + tracking per frame.
 //! * [`smoothing`]: MediaPipe's video-mode one-euro smoothing.
+//! * [`ibug68`], [`eyes`]: the mesh read as the 68 iBUG points; the eye outlines and iris
+//!   centres (gaze).
 //!
 //! ```no_run
 //! use facecap_mesh::{FaceMesh, MeshModels, MeshParams, MeshTracker, RgbView};
@@ -28,6 +30,7 @@
 
 pub mod detector;
 pub mod error;
+pub mod eyes;
 pub mod ibug68;
 pub mod roi;
 pub mod smoothing;

@@ -69,7 +69,7 @@ pub use net::{LiveOutputs, LiveSink};
 pub use preview::{write_preview, PreviewParams, PreviewReport};
 pub use render::{RenderWorkspace, RigRenderer, View};
 pub use sink::{FrameImages, Sink, TrackedFace};
-pub use sinks::{LandmarkCsvSink, LandmarkRecorder};
+pub use sinks::{LandmarkCsvSink, LandmarkLayout, LandmarkRecorder};
 pub use tensor::{TensorSetup, TensorSink};
 pub use tracker::{
     open_video, open_video_rgb, open_video_with, replay, FrontEnd, Queues, RunControl, RunReport, TrackerPolicy,

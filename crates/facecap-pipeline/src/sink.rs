@@ -25,6 +25,10 @@ pub struct TrackedFace {
     /// Iris centres (when some sink asked for them, [`Sink::wants_iris`], and the face
     /// was tracked).
     pub iris: Option<facecap_landmarks::gaze::IrisFrame>,
+    /// The face mesh's 478 points `[x, y, z]` (pixels, as [`facecap_mesh::FaceMesh`]),
+    /// when the mesh front end tracked the face and some sink asked for them
+    /// ([`Sink::wants_mesh`]).
+    pub mesh: Option<Arc<[[f32; 3]]>>,
 }
 
 /// Which frames' grey images a sink needs.
@@ -73,6 +77,11 @@ pub trait Sink: Send {
     /// Whether this sink needs the iris centres (the gaze signal) of tracked frames
     /// (default: no; they are estimated on the tracking thread from the grey frame).
     fn wants_iris(&self) -> bool {
+        false
+    }
+    /// Whether this sink needs the face mesh's 478 points of tracked frames
+    /// ([`TrackedFace::mesh`]; default: no; only the mesh front end has them).
+    fn wants_mesh(&self) -> bool {
         false
     }
     /// One tracked frame.

@@ -18,10 +18,12 @@ use facecap_core::landmarks::Landmarks68;
 use facecap_io::csv::LandmarkRecord;
 use facecap_io::video::{open_source, Frame, FrameSource, SourceOptions, VideoInfo};
 use facecap_landmarks::detect::FaceDetector;
+use facecap_landmarks::ert::ErtWorkspace;
 use facecap_landmarks::ert::{ErtParams, OutputPrecision, ShapePredictor};
-use facecap_landmarks::gaze::{IrisEstimator, IrisFrame, IrisParams};
+use facecap_landmarks::gaze::{IrisEstimator, IrisFrame, IrisParams, IrisWorkspace};
+use facecap_landmarks::tracker::backends::DetectorWs;
 use facecap_landmarks::tracker::one_euro::OneEuroParams;
-use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState};
+use facecap_landmarks::tracker::{LandmarkTracker, TrackedFrame, TrackerParams, TrackerState, TrackerWorkspace};
 
 use crate::error::{Error, Result};
 use crate::sink::{Sink, TrackedFace};
@@ -76,12 +78,13 @@ struct Tracked {
 ///
 /// | name | default | meaning |
 /// |---|---|---|
-/// | `smooth` | false | One Euro filter on the landmarks (less jitter on still faces, lag on fast motion; docs/tracking.md) |
-/// | `shape_model` | the cache's `shape_predictor_68_face_landmarks.dat` | dlib 68-point model file |
+/// | `smooth` | false | `dlib68`: One Euro filter on the landmarks (less jitter on still faces, lag on fast motion; docs/tracking.md); `mesh`: MediaPipe's video-mode one-euro smoothing of the 478 points (docs/mesh.md) |
+/// | `shape_model` | the cache's `shape_predictor_68_face_landmarks.dat` | dlib 68-point model file (`dlib68` only) |
 ///
 /// The shape predictor always returns sub-pixel landmarks (dlib rounds to whole
 /// pixels, which adds jitter to tracking); the face detector is the built-in dlib HOG
-/// model.
+/// model. `shape_model`, `upsample` and `ert_precision` are dlib's and unused by the
+/// `mesh` front end, which loads none of dlib's models.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerPolicy {
     /// Smooth landmarks with the One Euro filter.
@@ -151,9 +154,128 @@ impl TrackerPolicy {
 /// The landmark tracker every command runs (module docs).
 #[derive(Debug)]
 pub struct VideoTracker {
-    tracker: LandmarkTracker<FaceDetector, ShapePredictor>,
-    iris: IrisEstimator,
-    mesh: Option<facecap_mesh::MeshTracker>,
+    front: Front,
+}
+
+/// The loaded landmark front end: only the models it runs.
+#[derive(Debug)]
+enum Front {
+    /// dlib's HOG detector and ERT shape predictor; gaze from the grey frame
+    /// ([`IrisEstimator`] on the six eye landmarks).
+    Dlib68 {
+        tracker: Box<LandmarkTracker<FaceDetector, ShapePredictor>>,
+        iris: IrisEstimator,
+    },
+    /// MediaPipe's face detector and face mesh; gaze from the mesh's iris landmarks
+    /// between its eye corners and lids ([`mesh_iris`]).
+    Mesh {
+        tracker: Box<facecap_mesh::MeshTracker>,
+        iris: IrisParams,
+    },
+}
+
+/// One run's workspaces and between-frame state of the front end.
+enum FrontRun<'a> {
+    Dlib68 {
+        tracker: &'a LandmarkTracker<FaceDetector, ShapePredictor>,
+        ws: Box<TrackerWorkspace<DetectorWs, ErtWorkspace>>,
+        state: TrackerState,
+        iris: &'a IrisEstimator,
+        iris_ws: IrisWorkspace,
+    },
+    Mesh {
+        tracker: &'a facecap_mesh::MeshTracker,
+        ws: Box<facecap_mesh::MeshWorkspace>,
+        state: facecap_mesh::MeshState,
+        mesh: facecap_mesh::FaceMesh,
+        iris: &'a IrisParams,
+    },
+}
+
+impl<'a> FrontRun<'a> {
+    fn new(front: &'a Front) -> Self {
+        match front {
+            Front::Dlib68 { tracker, iris } => FrontRun::Dlib68 {
+                tracker,
+                ws: Box::new(tracker.new_workspace()),
+                state: TrackerState::new(),
+                iris,
+                iris_ws: iris.new_workspace(),
+            },
+            Front::Mesh { tracker, iris } => FrontRun::Mesh {
+                tracker,
+                ws: Box::new(tracker.workspace()),
+                state: tracker.state(),
+                mesh: facecap_mesh::FaceMesh::default(),
+                iris,
+            },
+        }
+    }
+
+    /// Forgets the face: the next frame starts from a fresh detection (after a frame
+    /// that could not be decoded, or landmarks rejected as implausible).
+    fn restart(&mut self) {
+        match self {
+            FrontRun::Dlib68 { state, .. } => *state = TrackerState::new(),
+            FrontRun::Mesh { tracker, state, .. } => *state = tracker.state(),
+        }
+    }
+
+    /// Tracks one frame into `out`.
+    fn track(&mut self, frame: &Frame, out: &mut TrackedFrame) -> Result<()> {
+        match self {
+            FrontRun::Dlib68 { tracker, ws, state, .. } => {
+                tracker.track_into(&frame.gray, frame.timestamp_s, ws, state, out)?;
+                Ok(())
+            }
+            FrontRun::Mesh {
+                tracker,
+                ws,
+                state,
+                mesh,
+                ..
+            } => track_mesh(tracker, frame, ws, state, mesh, out),
+        }
+    }
+
+    /// The gaze signal of the frame just tracked, whose landmarks are `landmarks`.
+    fn iris(&mut self, frame: &Frame, landmarks: &Landmarks68, out: &mut IrisFrame) -> bool {
+        match self {
+            FrontRun::Dlib68 { iris, iris_ws, .. } => iris.estimate_into(&frame.gray, landmarks, iris_ws, out).is_ok(),
+            FrontRun::Mesh { mesh, iris, .. } => mesh_iris(&mesh.points, iris, out),
+        }
+    }
+
+    /// The 478 mesh points of the frame just tracked (mesh front end only).
+    fn mesh_points(&self) -> Option<&[[f32; 3]]> {
+        match self {
+            FrontRun::Dlib68 { .. } => None,
+            FrontRun::Mesh { mesh, .. } => Some(&mesh.points),
+        }
+    }
+}
+
+/// Both eyes' gaze from the mesh's iris centres (468, 473) in the eye frame of the mesh's
+/// corners and lids ([`facecap_mesh::eyes`], [`facecap_landmarks::gaze::eye_from_centre`]):
+/// the same `(u, v)` as the grey-frame estimator measures, so the resting gaze and the
+/// `eyeLook*` mapping apply unchanged. `false` (and `out` untouched) for a mesh without
+/// its 478 points.
+pub fn mesh_iris(points: &[[f32; 3]], params: &IrisParams, out: &mut IrisFrame) -> bool {
+    use facecap_landmarks::gaze::{eye_from_centre, Eye};
+    use facecap_mesh::eyes;
+    let p2 = |(x, y): (f64, f64)| nalgebra::Point2::new(x, y);
+    let one = |outline: &[usize; 6], iris: usize, eye: Eye| {
+        eyes::eye(points, outline, iris).map(|(o, c)| eye_from_centre(&o.map(p2), p2(c), eye, params))
+    };
+    let (Some(right), Some(left)) = (
+        one(&eyes::RIGHT_EYE_OUTLINE, eyes::RIGHT_IRIS_CENTER, Eye::Right),
+        one(&eyes::LEFT_EYE_OUTLINE, eyes::LEFT_IRIS_CENTER, Eye::Left),
+    ) else {
+        return false;
+    };
+    out.right = right;
+    out.left = left;
+    true
 }
 
 /// Per-run controls: interruption and a per-frame callback on the tracking thread.
@@ -347,35 +469,57 @@ impl VideoTracker {
     ///
     /// # Errors
     /// A missing or unreadable model file.
+    /// Loads the models of `policy`'s front end once: dlib's detector and shape predictor
+    /// for `dlib68`, MediaPipe's detector and face mesh for `mesh` (not both).
     pub fn new(policy: &TrackerPolicy) -> Result<Self> {
-        let detector = FaceDetector::default_model()?.with_upsample(policy.upsample)?;
-        let path = policy.shape_model_path()?;
-        let ert = ShapePredictor::from_file_cached(&path)?.0.with_params(ErtParams {
-            output: OutputPrecision::SubPixel,
-            precision: policy.ert_precision,
-        });
-        let mut params = TrackerParams::default();
-        if policy.smooth {
-            params.filter = Some(OneEuroParams::default());
-        }
-        let mesh = match policy.front_end {
-            FrontEnd::Dlib68 => None,
-            FrontEnd::Mesh => Some(facecap_mesh::MeshTracker::new(
-                facecap_mesh::MeshModels::from_cache()?,
-                facecap_mesh::MeshParams::default(),
-            )?),
+        let front = match policy.front_end {
+            FrontEnd::Dlib68 => {
+                let detector = FaceDetector::default_model()?.with_upsample(policy.upsample)?;
+                let path = policy.shape_model_path()?;
+                let ert = ShapePredictor::from_file_cached(&path)?.0.with_params(ErtParams {
+                    output: OutputPrecision::SubPixel,
+                    precision: policy.ert_precision,
+                });
+                let mut params = TrackerParams::default();
+                if policy.smooth {
+                    params.filter = Some(OneEuroParams::default());
+                }
+                Front::Dlib68 {
+                    tracker: Box::new(LandmarkTracker::new(detector, ert, params)?),
+                    iris: IrisEstimator::new(IrisParams::default())?,
+                }
+            }
+            FrontEnd::Mesh => {
+                let params = facecap_mesh::MeshParams {
+                    smoothing: policy.smooth.then(facecap_mesh::SmoothingParams::default),
+                    ..facecap_mesh::MeshParams::default()
+                };
+                let iris = IrisParams::default();
+                iris.validate()?;
+                Front::Mesh {
+                    tracker: Box::new(facecap_mesh::MeshTracker::new(
+                        facecap_mesh::MeshModels::from_cache()?,
+                        params,
+                    )?),
+                    iris,
+                }
+            }
         };
-        Ok(VideoTracker {
-            tracker: LandmarkTracker::new(detector, ert, params)?,
-            iris: IrisEstimator::new(IrisParams::default())?,
-            mesh,
-        })
+        Ok(VideoTracker { front })
+    }
+
+    /// The front end this tracker runs.
+    pub fn front_end(&self) -> FrontEnd {
+        match self.front {
+            Front::Dlib68 { .. } => FrontEnd::Dlib68,
+            Front::Mesh { .. } => FrontEnd::Mesh,
+        }
     }
 
     /// Whether frames must come with colour ([`Frame::rgb`]): the mesh front end's
     /// models read RGB. Open the source with [`open_video_rgb`] accordingly.
     pub fn needs_rgb(&self) -> bool {
-        self.mesh.is_some()
+        matches!(self.front, Front::Mesh { .. })
     }
 
     /// Runs `source` through the tracker into `sinks` (module docs). The sinks are not
@@ -412,24 +556,13 @@ impl VideoTracker {
         let wants: Vec<_> = sinks.iter().map(|s| s.images()).collect();
         let names: Vec<String> = sinks.iter().map(|s| s.name().to_string()).collect();
         let want_iris = sinks.iter().any(|s| s.wants_iris());
-        let mut iris_ws = self.iris.new_workspace();
+        let want_mesh = sinks.iter().any(|s| s.wants_mesh());
         let mut iris_frame = IrisFrame::default();
-        let iris_estimator = &self.iris;
         let (frame_tx, frame_rx) = std::sync::mpsc::sync_channel::<Decoded>(queues.decoded);
         let (recycle_tx, recycle_rx) = std::sync::mpsc::channel::<Frame>();
         let (track_tx, track_rx) = std::sync::mpsc::sync_channel::<Tracked>(queues.tracked);
-        let tracker = &self.tracker;
-        let mut ws = tracker.new_workspace();
-        let mut state = TrackerState::new();
+        let mut front = FrontRun::new(&self.front);
         let mut tracked = TrackedFrame::default();
-        let mut mesh_front = self.mesh.as_ref().map(|m| {
-            (
-                m,
-                m.workspace(),
-                facecap_mesh::MeshState::default(),
-                facecap_mesh::FaceMesh::default(),
-            )
-        });
         let interrupted = control.interrupted;
         let on_frame = &mut control.on_frame;
         let mut rejected = Vec::new();
@@ -498,10 +631,7 @@ impl VideoTracker {
                         } => {
                             undecodable.push((index, reason));
                             // the tracker starts again from a detection after the gap
-                            state = TrackerState::new();
-                            if let Some((_, _, mstate, _)) = mesh_front.as_mut() {
-                                *mstate = facecap_mesh::MeshState::default();
-                            }
+                            front.restart();
                             let face = TrackedFace {
                                 index,
                                 timestamp: timestamp.max(0.0),
@@ -510,6 +640,7 @@ impl VideoTracker {
                                 rect: None,
                                 gray: None,
                                 iris: None,
+                                mesh: None,
                             };
                             frames += 1;
                             if track_tx.send(Tracked { face, wanted: 0 }).is_err() {
@@ -522,14 +653,7 @@ impl VideoTracker {
                         return Err(Error::Interrupted { frame: frame.index });
                     }
                     let t = Instant::now();
-                    match mesh_front.as_mut() {
-                        None => {
-                            tracker.track_into(&frame.gray, frame.timestamp_s, &mut ws, &mut state, &mut tracked)?;
-                        }
-                        Some((m, mws, mstate, mesh)) => {
-                            track_mesh(m, &frame, mws, mstate, mesh, &mut tracked)?;
-                        }
-                    }
+                    front.track(&frame, &mut tracked)?;
                     busy += t.elapsed().as_secs_f64();
                     let mut wanted = 0u64;
                     for (k, (w, n)) in wants.iter().zip(taken.iter_mut()).enumerate() {
@@ -545,17 +669,14 @@ impl VideoTracker {
                             rejected.push((frame.index, why));
                             tracked.success = false;
                             // track from a fresh detection next frame, not from these points
-                            state = TrackerState::new();
-                            if let Some((_, _, mstate, _)) = mesh_front.as_mut() {
-                                *mstate = facecap_mesh::MeshState::default();
-                            }
+                            front.restart();
                         }
                     }
-                    let iris = if want_iris && tracked.success {
-                        iris_estimator
-                            .estimate_into(&frame.gray, &tracked.landmarks, &mut iris_ws, &mut iris_frame)
-                            .ok()
-                            .map(|_| iris_frame)
+                    let iris =
+                        (want_iris && tracked.success && front.iris(&frame, &tracked.landmarks, &mut iris_frame))
+                            .then_some(iris_frame);
+                    let mesh = if want_mesh && tracked.success {
+                        front.mesh_points().map(Arc::<[[f32; 3]]>::from)
                     } else {
                         None
                     };
@@ -567,6 +688,7 @@ impl VideoTracker {
                         rect: tracked.rect,
                         gray: keep.then(|| Arc::new(frame.gray.clone())),
                         iris,
+                        mesh,
                     };
                     let msg = Tracked { face, wanted };
                     frames += 1;
@@ -668,6 +790,7 @@ pub fn replay(records: &[LandmarkRecord], sinks: &mut [&mut dyn Sink]) -> Result
                 rect: None,
                 gray: None,
                 iris: None,
+                mesh: None,
             },
             wanted: 0,
         }),
