@@ -235,13 +235,13 @@ fn capture_args(args: &Args, row: Option<&Row>) -> anyhow::Result<cmd_capture::A
     a.force |= args.force;
     if let Some(r) = row {
         if let Some(rig) = &r.rig {
-            a.rig = Some(rig.clone());
+            a.solve.rig = Some(rig.clone());
         }
         if let Some(map) = &r.landmark_map {
-            a.landmark_map = Some(map.clone());
+            a.solve.landmark_map = Some(map.clone());
         }
         if let Some(c) = &r.camera {
-            a.camera = Some(c.clone());
+            a.solve.camera = Some(c.clone());
         }
         if let Some(n) = &r.neutral {
             a.neutral = n.clone();

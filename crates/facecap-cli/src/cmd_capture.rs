@@ -15,7 +15,6 @@
 //! Every file is written atomically (temporary file + rename), so an interrupt or a
 //! crash never leaves a half-written file under a final name.
 
-use facecap_landmarks::detect::Upsample;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -51,15 +50,9 @@ pub struct Args {
     /// Output folder; each video gets `DIR/<video-stem>/`.
     #[arg(long)]
     pub out: PathBuf,
-    /// Blendshape rig (glTF/GLB with morph targets). Default: the built-in rig.
-    #[arg(long)]
-    pub rig: Option<PathBuf>,
-    /// Landmark map of `--rig` (JSON: `vertex_by_ibug_0based`, or a list of 68 ids).
-    #[arg(long)]
-    pub landmark_map: Option<PathBuf>,
-    /// Expression solver (`exact3d`: joint head pose and weights, perspective camera).
-    #[arg(long, default_value = "exact3d", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
-    pub solver: String,
+    /// The rig and solver flags (shared with `live`).
+    #[command(flatten)]
+    pub solve: SolveArgs,
     /// Muscle set JSON, or `default` for the built-in 11-muscle set.
     #[arg(long)]
     pub muscles: Option<String>,
@@ -69,9 +62,6 @@ pub struct Args {
     /// Landmark map of the `--tensor` model's mesh (68 iBUG landmarks -> vertex ids).
     #[arg(long)]
     pub tensor_landmark_map: Option<PathBuf>,
-    /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
-    #[arg(long)]
-    pub camera: Option<String>,
     /// Also write one OBJ per frame (`obj/frame_NNNNNN.obj`, rig space; see --obj-space).
     #[arg(long)]
     pub obj: bool,
@@ -82,11 +72,6 @@ pub struct Args {
     /// Keep the head still in `animation.glb` (morph weights only, no node motion).
     #[arg(long)]
     pub still_head: bool,
-    /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`, px^2).
-    /// The default cuts the weights' jitter on resting stretches by a quarter with no lag at
-    /// blink onset (docs/expressions.md, "Temporal"); 0 turns it off.
-    #[arg(long, default_value_t = 100.0)]
-    pub temporal: f64,
     /// Smooth landmarks with the One Euro filter (less jitter on still faces, some lag
     /// on fast motion; off by default, see docs/tracking.md).
     #[arg(long)]
@@ -129,11 +114,9 @@ pub struct Args {
     /// no frame at all could be decoded.
     #[arg(long)]
     pub strict: bool,
-    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
-    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
-    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
-    #[arg(long, value_name = "auto|N", default_value = "auto")]
-    pub upsample: Upsample,
+    /// `--upsample`.
+    #[command(flatten)]
+    pub detect: crate::upsample_flag::UpsampleFlag,
     /// `--ert-precision`.
     #[command(flatten)]
     pub ert: crate::ert_flag::ErtFlag,
@@ -142,6 +125,28 @@ pub struct Args {
     /// points; docs/mesh.md).
     #[arg(long, value_name = "dlib68|mesh", default_value = "dlib68")]
     pub landmarks: facecap_pipeline::FrontEnd,
+}
+
+/// The rig, solver and camera flags of `capture` and `live` (the same meaning in both).
+#[derive(Debug, Clone, clap::Args)]
+pub struct SolveArgs {
+    /// Blendshape rig (glTF/GLB with morph targets). Default: the built-in rig.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// Landmark map of `--rig` (JSON: `vertex_by_ibug_0based`, or a list of 68 ids).
+    #[arg(long)]
+    pub landmark_map: Option<PathBuf>,
+    /// Expression solver (`exact3d`: joint head pose and weights, perspective camera).
+    #[arg(long, default_value = "exact3d", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
+    pub solver: String,
+    /// Temporal smoothness weight of the solver (`lambda * ||e_t - e_{t-1}||^2`, px^2).
+    /// The default cuts the weights' jitter on resting stretches by a quarter with no lag at
+    /// blink onset (docs/expressions.md, "Temporal"); 0 turns it off.
+    #[arg(long, default_value_t = 100.0)]
+    pub temporal: f64,
+    /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
+    #[arg(long)]
+    pub camera: Option<String>,
 }
 
 /// Everything shared by all videos.
@@ -236,14 +241,9 @@ pub(crate) struct ExpressionParts {
     pub(crate) neutral: NeutralHook,
 }
 
-pub(crate) fn expression_parts(
-    rig: Option<&Path>,
-    landmark_map: Option<&Path>,
-    solver: &str,
-    temporal: f64,
-    neutral: &str,
-) -> anyhow::Result<ExpressionParts> {
-    let method: Method = solver.parse()?;
+pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Result<ExpressionParts> {
+    let (rig, landmark_map, temporal) = (solve.rig.as_deref(), solve.landmark_map.as_deref(), solve.temporal);
+    let method: Method = solve.solver.parse()?;
     let neutral: crate::neutral::NeutralChoice = neutral.parse()?;
     if !(temporal.is_finite() && temporal >= 0.0) {
         anyhow::bail!("--temporal must be finite and >= 0, got {temporal}");
@@ -308,19 +308,13 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         renderer,
         expression,
         neutral,
-    } = expression_parts(
-        args.rig.as_deref(),
-        args.landmark_map.as_deref(),
-        &args.solver,
-        args.temporal,
-        &args.neutral,
-    )?;
+    } = expression_parts(&args.solve, &args.neutral)?;
     let method = expression.method;
-    let camera = args.camera.as_deref().map(parse_camera).transpose()?;
+    let camera = args.solve.camera.as_deref().map(parse_camera).transpose()?;
     let tracker = VideoTracker::new(&TrackerPolicy {
         smooth: args.smooth,
         shape_model: None,
-        upsample: args.upsample,
+        upsample: args.detect.upsample,
         ert_precision: args.ert.ert_precision,
         front_end: args.landmarks,
     })?;
@@ -355,9 +349,9 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     let args_echo = json!({
         "rig": rig_name,
         "solver": method.name(),
-        "temporal": args.temporal,
+        "temporal": args.solve.temporal,
         "smooth": args.smooth,
-        "camera": args.camera,
+        "camera": args.solve.camera,
         "muscles": args.muscles,
         "tensor": args.tensor.as_ref().map(|p| p.display().to_string()),
         "obj": obj_space.map(|s| match s { ObjSpace::Model => "model", ObjSpace::Camera => "camera" }),
@@ -369,11 +363,11 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
     let output_settings = json!({
         "capture": args_echo,
         "sheet_frames": args.sheet_frames,
-        "upsample": args.upsample.to_string(),
-        "landmarks": format!("{:?}", args.landmarks),
+        "upsample": args.detect.upsample.to_string(),
+        "landmarks": args.landmarks.to_string(),
         "files": {
-            "rig": file(args.rig.as_ref()),
-            "landmark_map": file(args.landmark_map.as_ref()),
+            "rig": file(args.solve.rig.as_ref()),
+            "landmark_map": file(args.solve.landmark_map.as_ref()),
             "muscles": file(args.muscles.as_ref().filter(|m| *m != "default").map(PathBuf::from).as_ref()),
             "tensor": file(args.tensor.as_ref()),
             "tensor_landmark_map": file(args.tensor_landmark_map.as_ref()),

@@ -95,11 +95,9 @@ pub struct Args {
     /// Grey conversion of colour images.
     #[arg(long, value_enum, default_value_t = GreyMode::Bt601)]
     pub grey: GreyMode,
-    /// Face detector up-sampling: `auto` (default; finds what dlib's `detector(img, 1)`
-    /// finds, scanning the finest levels only when needed) or N = 0..4 doublings of the
-    /// image before detection, exactly dlib's `detector(img, N)` (docs/detection.md).
-    #[arg(long, value_name = "auto|N", default_value = "auto")]
-    pub upsample: Upsample,
+    /// `--upsample`.
+    #[command(flatten)]
+    pub detect: crate::upsample_flag::UpsampleFlag,
     /// `--ert-precision`.
     #[command(flatten)]
     pub ert: crate::ert_flag::ErtFlag,
@@ -189,7 +187,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             out_dir: args.out.clone(),
             draw: args.draw,
             model: args.model.clone(),
-            upsample: args.upsample,
+            upsample: args.detect.upsample,
             ert_precision: args.ert.ert_precision,
             smooth: args.smooth,
             strict: args.strict,
@@ -220,7 +218,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         Some(_) => None,
         None => Some(
             facecap_landmarks::detect::FaceDetector::default_model()
-                .and_then(|d| d.with_upsample(args.upsample))
+                .and_then(|d| d.with_upsample(args.detect.upsample))
                 .context("loading the face detector")?,
         ),
     };

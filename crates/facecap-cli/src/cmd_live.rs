@@ -17,7 +17,6 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use facecap_core::camera::Intrinsics;
-use facecap_landmarks::detect::Upsample;
 use facecap_pipeline::live::RawInput;
 use facecap_pipeline::net::{quantile, udp_to, JsonTarget, LiveReport, PreviewFrame};
 use facecap_pipeline::outputs::SolveOutputs;
@@ -27,7 +26,7 @@ use facecap_pipeline::{
 };
 use serde_json::json;
 
-use crate::cmd_capture::{expression_parts, parse_camera};
+use crate::cmd_capture::{expression_parts, parse_camera, SolveArgs};
 
 /// Length of the resting window the neutral is taken from (seconds).
 pub const NEUTRAL_WINDOW_S: f64 = 1.0;
@@ -87,24 +86,12 @@ pub struct Args {
     /// Live Link subject name.
     #[arg(long, default_value = "facecap")]
     pub subject: String,
-    /// Blendshape rig (glTF/GLB with morph targets). Default: the built-in rig.
-    #[arg(long)]
-    pub rig: Option<PathBuf>,
-    /// Landmark map of `--rig`.
-    #[arg(long)]
-    pub landmark_map: Option<PathBuf>,
-    /// Expression solver.
-    #[arg(long, default_value = "exact3d", value_parser = ["exact", "exact3d", "bobyqa", "region", "pca"])]
-    pub solver: String,
-    /// Temporal smoothness weight of the solver (as `capture`).
-    #[arg(long, default_value_t = 100.0)]
-    pub temporal: f64,
-    /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
-    #[arg(long)]
-    pub camera: Option<String>,
-    /// Face detector up-sampling (as `capture`).
-    #[arg(long, value_name = "auto|N", default_value = "auto")]
-    pub upsample: Upsample,
+    /// The rig and solver flags (as `capture`).
+    #[command(flatten)]
+    pub solve: SolveArgs,
+    /// `--upsample`.
+    #[command(flatten)]
+    pub detect: crate::upsample_flag::UpsampleFlag,
     /// `--ert-precision`.
     #[command(flatten)]
     pub ert: crate::ert_flag::ErtFlag,
@@ -168,17 +155,11 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             path.display()
         );
     }
-    let parts = expression_parts(
-        args.rig.as_deref(),
-        args.landmark_map.as_deref(),
-        &args.solver,
-        args.temporal,
-        &args.neutral,
-    )?;
+    let parts = expression_parts(&args.solve, &args.neutral)?;
     let tracker = VideoTracker::new(&TrackerPolicy {
         smooth: false,
         shape_model: None,
-        upsample: args.upsample,
+        upsample: args.detect.upsample,
         ert_precision: args.ert.ert_precision,
         ..TrackerPolicy::default()
     })?;
@@ -204,7 +185,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     };
     let (source, child) = open_live(&input, None, raw, &controls.stop)?;
     let info = source.info().clone();
-    let camera = match args.camera.as_deref() {
+    let camera = match args.solve.camera.as_deref() {
         Some(c) => parse_camera(c)?,
         None => Intrinsics::default_for_frame(info.width, info.height)?,
     };
@@ -338,7 +319,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         "timings_seconds": {"decode": run.decode_seconds, "track": run.track_seconds, "live": run.sink_seconds("live")},
         "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy},
         "shapes": result.names,
-        "settings": {"rig": parts.rig_name, "solver": parts.expression.method.name(), "temporal": args.temporal,
+        "settings": {"rig": parts.rig_name, "solver": parts.expression.method.name(), "temporal": args.solve.temporal,
                      "neutral": args.neutral, "neutral_after": args.neutral_after},
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},
     });

@@ -3,8 +3,7 @@
 //! Shared vocabulary of the facecap workspace: the iBUG 68-point landmark scheme,
 //! face boxes, meshes with morph targets, pinhole cameras, rigid poses that name the
 //! frames they map between, the one error type, atomic file writing, model-cache and
-//! shared-data paths, model checksums, landmark-to-vertex maps, and the bridge between
-//! nalgebra and ndarray.
+//! shared-data paths, model checksums and landmark-to-vertex maps.
 //!
 //! File formats (video, images, glTF, OBJ, CSV, landmark files) live in `facecap-io`,
 //! shared geometry and small dense solvers (PnP, alignment, Cholesky, box QP, NNLS,
@@ -32,7 +31,6 @@ pub mod landmarks;
 
 pub use error::{Error, Result};
 pub mod atomic;
-pub mod bridge;
 pub mod camera;
 pub mod checksum;
 pub mod landmark_map;

@@ -91,13 +91,6 @@ fn check_inputs(n_src: usize, n_dst: usize, weights: Option<&[f64]>, min: usize)
                 got: w.len(),
             });
         }
-        if let Some(i) = w.iter().position(|w| !w.is_finite() || *w < 0.0) {
-            return Err(Error::invalid(
-                "alignment weight",
-                format!("w[{i}] = {}", w[i]),
-                "finite and >= 0",
-            ));
-        }
     }
     if n_src < min {
         return Err(Error::invalid("alignment point count", n_src, format!(">= {min}")));
@@ -114,16 +107,24 @@ struct Moments<const D: usize> {
     var_x: f64,
 }
 
+/// The moments over the points of non-zero weight (a point of weight 0 is not read, so
+/// it may be non-finite). No allocation.
 fn weighted_moments<const D: usize>(
     src: &[Point<f64, D>],
     dst: &[Point<f64, D>],
-    weights: Option<&[f64]>,
+    weight: impl Fn(usize) -> f64,
     operation: &'static str,
 ) -> Result<Moments<D>> {
-    let w = |i: usize| weights.map_or(1.0, |w| w[i]);
     let mut wsum = 0.0;
     let (mut mx, mut my) = (SVector::<f64, D>::zeros(), SVector::<f64, D>::zeros());
-    for i in 0..src.len() {
+    for i in 0..src.len().min(dst.len()) {
+        let w = weight(i);
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(Error::invalid("alignment weight", format!("w[{i}] = {w}"), "finite and >= 0"));
+        }
+        if w == 0.0 {
+            continue;
+        }
         if !(src[i].coords.iter().chain(dst[i].coords.iter()).all(|v| v.is_finite())) {
             return Err(Error::invalid(
                 "alignment point",
@@ -131,9 +132,9 @@ fn weighted_moments<const D: usize>(
                 "finite coordinates",
             ));
         }
-        wsum += w(i);
-        mx += w(i) * src[i].coords;
-        my += w(i) * dst[i].coords;
+        wsum += w;
+        mx += w * src[i].coords;
+        my += w * dst[i].coords;
     }
     if wsum <= 0.0 {
         return Err(Error::Numerical {
@@ -145,11 +146,15 @@ fn weighted_moments<const D: usize>(
     my /= wsum;
     let mut cov = SMatrix::<f64, D, D>::zeros();
     let mut var_x = 0.0;
-    for i in 0..src.len() {
+    for i in 0..src.len().min(dst.len()) {
+        let w = weight(i);
+        if w == 0.0 {
+            continue;
+        }
         let xs = src[i].coords - mx;
         let ys = dst[i].coords - my;
-        cov += w(i) * ys * xs.transpose();
-        var_x += w(i) * xs.norm_squared();
+        cov += w * ys * xs.transpose();
+        var_x += w * xs.norm_squared();
     }
     cov /= wsum;
     var_x /= wsum;
@@ -163,7 +168,8 @@ fn weighted_moments<const D: usize>(
 }
 
 /// Weighted 2D Umeyama alignment mapping `src` onto `dst`. With `with_scale = false`
-/// the scale is fixed to 1 (rigid). `weights` default to 1.
+/// the scale is fixed to 1 (rigid). `weights` default to 1; a point of weight 0 is
+/// ignored. Allocation-free ([`similarity2_weighted`] with the weights as a function).
 ///
 /// # Errors
 /// Mismatched lengths, fewer than 2 points, negative/non-finite weights or points,
@@ -175,7 +181,24 @@ pub fn umeyama2(
     with_scale: bool,
 ) -> Result<Similarity2> {
     check_inputs(src.len(), dst.len(), weights, 2)?;
-    let Moments { mx, my, cov, var_x } = weighted_moments(src, dst, weights, "umeyama2")?;
+    similarity2_weighted(src, dst, |i| weights.map_or(1.0, |w| w[i]), with_scale)
+}
+
+/// The 2D Umeyama alignment of [`umeyama2`] with the weight of point `i` given by
+/// `weight(i)` (e.g. 1 for a tracked point and 0 for a lost one: a masked fit), without
+/// allocating. Points of weight 0 are not read. Pairs beyond the shorter slice are
+/// ignored.
+///
+/// # Errors
+/// A negative or non-finite weight, a non-finite point of non-zero weight, weights
+/// summing to zero, or a degenerate (all coincident) source set.
+pub fn similarity2_weighted(
+    src: &[Point2<f64>],
+    dst: &[Point2<f64>],
+    weight: impl Fn(usize) -> f64,
+    with_scale: bool,
+) -> Result<Similarity2> {
+    let Moments { mx, my, cov, var_x } = weighted_moments(src, dst, weight, "umeyama2")?;
     // Closed form in 2D: R is the rotation by atan2(c10 - c01, c00 + c11).
     let a = cov[(0, 0)] + cov[(1, 1)];
     let b = cov[(1, 0)] - cov[(0, 1)];
@@ -204,7 +227,7 @@ pub fn umeyama3(
     with_scale: bool,
 ) -> Result<Similarity3> {
     check_inputs(src.len(), dst.len(), weights, 3)?;
-    let Moments { mx, my, cov, var_x } = weighted_moments(src, dst, weights, "umeyama3")?;
+    let Moments { mx, my, cov, var_x } = weighted_moments(src, dst, |i| weights.map_or(1.0, |w| w[i]), "umeyama3")?;
     let svd = cov.svd(true, true);
     let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
         return Err(Error::Numerical {
@@ -305,6 +328,38 @@ mod tests {
         let dst: Vec<_> = src.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
         let est = umeyama3(&src, &dst, None, false).unwrap();
         assert_relative_eq!(est.rotation.determinant(), 1.0, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn masked_fit_ignores_unread_points_and_equals_the_fit_of_the_rest() {
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let truth = Similarity2 {
+            scale: 1.3,
+            rotation: *nalgebra::Rotation2::new(0.4).matrix(),
+            translation: Vector2::new(5.0, -2.0),
+        };
+        let src: Vec<_> = (0..21)
+            .map(|_| Point2::new(rng.random_range(-50.0..50.0), rng.random_range(-50.0..50.0)))
+            .collect();
+        let mut dst: Vec<_> = src
+            .iter()
+            .map(|p| truth.apply(p) + Vector2::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)))
+            .collect();
+        dst[4] = Point2::new(f64::NAN, 1e9);
+        dst[9].x += 300.0;
+        let mask = |i: usize| if i == 4 || i == 9 { 0.0 } else { 1.0 };
+        let masked = similarity2_weighted(&src, &dst, mask, true).unwrap();
+        let keep: Vec<usize> = (0..21).filter(|&i| mask(i) > 0.0).collect();
+        let (s2, d2): (Vec<_>, Vec<_>) = keep.iter().map(|&i| (src[i], dst[i])).unzip();
+        let rest = umeyama2(&s2, &d2, None, true).unwrap();
+        assert_relative_eq!(masked.scale, rest.scale, epsilon = 1e-12);
+        assert_relative_eq!(masked.rotation, rest.rotation, epsilon = 1e-12);
+        assert_relative_eq!(masked.translation, rest.translation, epsilon = 1e-9);
+        let weights: Vec<f64> = (0..21).map(mask).collect();
+        assert_eq!(umeyama2(&src, &dst, Some(&weights), true).unwrap(), masked);
+        // One point left is degenerate; a negative weight is an error.
+        assert!(similarity2_weighted(&src, &dst, |i| if i == 0 { 1.0 } else { 0.0 }, true).is_err());
+        assert!(similarity2_weighted(&src, &dst, |i| if i == 0 { -1.0 } else { 1.0 }, true).is_err());
     }
 
     #[test]

@@ -1,27 +1,21 @@
-//! Rigid pose from 3D model points and their 2D images (PnP), allocation-free.
+//! Weighted scaled-orthographic pose start and weighted reprojection error,
+//! allocation-free (the tensor fit's pose step; the refinement is
+//! [`crate::pnp::refine_pose`]).
 //!
-//! A temporary solver of this crate until `facecap_geom::pnp` lands: a scaled
-//! orthographic (weak-perspective) initialisation by linear least squares, as in
-//! POSIT's first step (DeMenthon & Davis 1995), then Levenberg-Marquardt on the full
-//! perspective reprojection error in pixels with the rotation updated
-//! multiplicatively (`R <- exp([w]x) R`).
+//! [`init_scaled_orthographic`] is POSIT's first step (DeMenthon & Davis 1995) with
+//! weights, solved by linear least squares and an SVD re-orthonormalisation; the
+//! perspective refinement that follows is the workspace's one Levenberg-Marquardt pose
+//! refinement, [`crate::pnp::refine_pose`].
 //!
 //! Conventions: [`ModelToCamera`] maps model to camera space (`X_c = R X_m + t`),
 //! camera +Z forward, pixels 0-based (see `facecap_core::camera`). Points with weight
 //! 0 are ignored (lost tracks).
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
-use nalgebra::{
-    Isometry3, Matrix2x3, Matrix3, Matrix6, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6,
-};
+use nalgebra::{Isometry3, Matrix2x3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use facecap_core::error::{Error, Result};
 
-/// Initial Levenberg-Marquardt damping (relative to the Gauss-Newton diagonal).
-const LM_LAMBDA0: f64 = 1e-3;
-/// Relative cost decrease below which the refinement has converged (actual or
-/// predicted by the Gauss-Newton model).
-const LM_REL_TOL: f64 = 1e-12;
 /// Smallest depth accepted for a point in front of the camera (model units).
 const MIN_DEPTH: f64 = 1e-9;
 
@@ -130,138 +124,6 @@ pub fn reprojection_rms(
     }
 }
 
-/// Levenberg-Marquardt refinement of `pose` on the perspective reprojection error.
-/// Returns the number of iterations done (normal-equation passes over the points).
-///
-/// Stops after `max_iter` iterations, when an accepted step decreased the cost by less
-/// than `1e-12` relative (or moved less than `1e-12`), when the quadratic model predicts a
-/// relative decrease below `1e-12` for the next step (a warm start at the optimum costs
-/// one pass), or when no damping in eight tries gave a decrease.
-///
-/// # Errors
-/// [`Error::DimensionMismatch`] for unequal slice lengths.
-pub fn refine_perspective(
-    model: &[Point3<f64>],
-    image: &[Point2<f64>],
-    weights: &[f64],
-    k: &Intrinsics,
-    pose: &mut ModelToCamera,
-    max_iter: usize,
-) -> Result<usize> {
-    check(model, image, weights)?;
-    // The rotation as a matrix once per pose (9 multiplications per point instead of
-    // the quaternion's ~30).
-    // The same arithmetic as the residuals of the normal-equations pass below, so that
-    // the cost of the current pose can be taken from that pass.
-    let cost = |pose: &ModelToCamera| {
-        let rm = *pose.0.rotation.to_rotation_matrix().matrix();
-        let t = pose.0.translation.vector;
-        let mut e = 0.0;
-        for ((p, x), &w) in model.iter().zip(image).zip(weights) {
-            if w > 0.0 {
-                let xc = rm * p.coords + t;
-                let iz = 1.0 / xc.z.max(MIN_DEPTH);
-                let r0 = k.fx * xc.x * iz + k.cx - x.x;
-                let r1 = k.fy * xc.y * iz + k.cy - x.y;
-                e += w * (r0 * r0 + r1 * r1);
-            }
-        }
-        e
-    };
-    let mut lambda = LM_LAMBDA0;
-    // Cost of `pose`: from the first normal-equations pass, then from the accepted candidates.
-    let mut cur = f64::NAN;
-    let mut it = 0;
-    while it < max_iter {
-        it += 1;
-        // Upper triangle of J^T W J (6 x 6, 21 entries) and J^T W r, with the two
-        // Jacobian rows written out: J = [dpi * (-[R p]x) | dpi], dpi = d pixel / d X_c.
-        let rm = *pose.0.rotation.to_rotation_matrix().matrix();
-        let tv = pose.0.translation.vector;
-        let mut hu = [0.0f64; 21];
-        let mut gv = [0.0f64; 6];
-        let mut e = 0.0;
-        for ((p, x), &w) in model.iter().zip(image).zip(weights) {
-            if w <= 0.0 {
-                continue;
-            }
-            let rp = rm * p.coords;
-            let xc = rp + tv;
-            let z = xc.z.max(MIN_DEPTH);
-            let iz = 1.0 / z;
-            let r0 = k.fx * xc.x * iz + k.cx - x.x;
-            let r1 = k.fy * xc.y * iz + k.cy - x.y;
-            e += w * (r0 * r0 + r1 * r1);
-            let (a, b) = (k.fx * iz, -k.fx * xc.x * iz * iz);
-            let (c, d) = (k.fy * iz, -k.fy * xc.y * iz * iz);
-            let j0 = [b * rp.y, a * rp.z - b * rp.x, -a * rp.y, a, 0.0, b];
-            let j1 = [-c * rp.z + d * rp.y, -d * rp.x, c * rp.x, 0.0, c, d];
-            let mut q = 0;
-            for pi in 0..6 {
-                let (u0, u1) = (w * j0[pi], w * j1[pi]);
-                for pj in pi..6 {
-                    hu[q] += u0 * j0[pj] + u1 * j1[pj];
-                    q += 1;
-                }
-                gv[pi] += u0 * r0 + u1 * r1;
-            }
-        }
-        let mut h = Matrix6::<f64>::zeros();
-        let mut q = 0;
-        for pi in 0..6 {
-            for pj in pi..6 {
-                h[(pi, pj)] = hu[q];
-                h[(pj, pi)] = hu[q];
-                q += 1;
-            }
-        }
-        if it == 1 {
-            cur = e;
-        }
-        let g = Vector6::from_column_slice(&gv);
-        let mut improved = false;
-        for _ in 0..8 {
-            let mut hd = h;
-            for d in 0..6 {
-                hd[(d, d)] += lambda * h[(d, d)].max(1e-12);
-            }
-            let Some(step) = hd.cholesky().map(|c| c.solve(&(-g))) else {
-                lambda *= 10.0;
-                continue;
-            };
-            // Converged when even the quadratic model predicts a negligible decrease
-            // (the candidate's cost would only show rounding noise).
-            let predicted = -g.dot(&step) - 0.5 * step.dot(&(h * step));
-            if predicted <= LM_REL_TOL * cur {
-                return Ok(it);
-            }
-            let dw = Vector3::new(step[0], step[1], step[2]);
-            let dt = Vector3::new(step[3], step[4], step[5]);
-            let cand = ModelToCamera(Isometry3::from_parts(
-                Translation3::from(pose.0.translation.vector + dt),
-                UnitQuaternion::from_scaled_axis(dw) * pose.0.rotation,
-            ));
-            let c = cost(&cand);
-            if c <= cur {
-                let rel = (cur - c) / cur.max(1e-300);
-                *pose = cand;
-                cur = c;
-                lambda = (lambda * 0.1).max(1e-12);
-                improved = true;
-                if rel < LM_REL_TOL || step.norm() < 1e-12 {
-                    return Ok(it);
-                }
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    Ok(it)
-}
-
 fn check(model: &[Point3<f64>], image: &[Point2<f64>], weights: &[f64]) -> Result<()> {
     if image.len() != model.len() {
         return Err(Error::dim("image point count", model.len(), image.len()));
@@ -275,6 +137,7 @@ fn check(model: &[Point3<f64>], image: &[Point2<f64>], weights: &[f64]) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pnp::{refine_pose, PnpParams};
     use rand::{Rng, SeedableRng};
 
     #[test]
@@ -297,7 +160,8 @@ mod tests {
             .collect();
         let w = vec![1.0; 68];
         let mut pose = init_scaled_orthographic(&model, &image, &w, &k).unwrap_or_else(|_| unreachable!());
-        refine_perspective(&model, &image, &w, &k, &mut pose, 30).unwrap_or_else(|_| unreachable!());
+        let params = PnpParams::default();
+        refine_pose(&mut pose, &k, &model, &image, Some(&w), &params).unwrap_or_else(|_| unreachable!());
         assert!(reprojection_rms(&model, &image, &w, &k, &pose) < 1e-6);
         assert!((pose.tvec() - truth.tvec()).norm() < 1e-6);
 
@@ -309,10 +173,14 @@ mod tests {
             .map(|x| Point2::new(x.x + rng.random_range(-2.0..2.0), x.y + rng.random_range(-2.0..2.0)))
             .collect();
         let mut opt = pose;
-        let its = refine_perspective(&model, &noisy, &w, &k, &mut opt, 30).unwrap_or_else(|_| unreachable!());
+        let its = refine_pose(&mut opt, &k, &model, &noisy, Some(&w), &params)
+            .unwrap_or_else(|_| unreachable!())
+            .iterations;
         assert!(its > 1, "{its}");
         let mut again = opt;
-        let its = refine_perspective(&model, &noisy, &w, &k, &mut again, 30).unwrap_or_else(|_| unreachable!());
+        let its = refine_pose(&mut again, &k, &model, &noisy, Some(&w), &params)
+            .unwrap_or_else(|_| unreachable!())
+            .iterations;
         assert_eq!(its, 1);
         assert_eq!(again, opt);
         assert!(reprojection_rms(&model, &noisy, &w, &k, &opt) < 2.0);

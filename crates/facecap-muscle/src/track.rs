@@ -47,12 +47,12 @@
 //! | `carry` | 1.0 | fraction of the error carried to the next frame | [0, 1] |
 //! | `first_frame_neutral` | true | frame 0 is neutral (thesis) | |
 
-use nalgebra::{Matrix2x3, Point2, Point3, Rotation3, Unit, Vector2, Vector3};
+use nalgebra::{Point2, Point3, Rotation3, Unit, Vector2, Vector3};
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
 use facecap_core::landmark_map::LandmarkMap;
 use facecap_geom::golden::golden_section;
-use facecap_geom::pnp::{refine_pose, solve_pnp, PnpParams};
+use facecap_geom::pnp::{apply_pose_step, point_jacobian, refine_pose, solve_pnp, PnpParams};
 
 use crate::error::{Error, Result};
 use crate::rig::MuscleRig;
@@ -134,6 +134,7 @@ impl TrackParams {
         if !(self.carry.is_finite() && (0.0..=1.0).contains(&self.carry)) {
             return Err(Error::invalid("carry", self.carry, "in [0, 1]"));
         }
+        self.pnp.validate()?;
         Ok(())
     }
 }
@@ -346,26 +347,13 @@ impl TrackModel {
         let rc = pose.0.rotation.to_rotation_matrix();
         let x = pose.transform(&p);
         let proj = intr.project(&x)?;
-        let dpi = dpi_dx(intr, &x);
+        let dpi = point_jacobian(intr, &(rc * p.coords), &x.coords).d_point_matrix();
         for (i, d) in dc.iter_mut().enumerate().take(self.names.len()) {
             *d = dpi * (rc.matrix() * (a * self.deltas[i * kk + k]));
         }
         let dtheta = rc.matrix() * (self.axis.cross(&(rj * (pm - self.pivot))) * w);
         Some((proj, dpi * dtheta))
     }
-}
-
-/// `d pi / d X` at camera point `x`.
-fn dpi_dx(k: &Intrinsics, x: &Point3<f64>) -> Matrix2x3<f64> {
-    let iz = 1.0 / x.z;
-    Matrix2x3::new(
-        k.fx * iz,
-        0.0,
-        -k.fx * x.x * iz * iz,
-        0.0,
-        k.fy * iz,
-        -k.fy * x.y * iz * iz,
-    )
 }
 
 /// Per-frame observations.
@@ -663,7 +651,7 @@ impl MuscleTracker {
         }
         match init {
             Some(mut p) => {
-                let rep = refine_pose(&mut p, &self.intr, &ws.stat_model, &ws.stat_image, &self.params.pnp);
+                let rep = refine_pose(&mut p, &self.intr, &ws.stat_model, &ws.stat_image, None, &self.params.pnp)?;
                 out.pose = p;
                 Ok(rep.rms_px)
             }
@@ -768,17 +756,14 @@ impl MuscleTracker {
                 let Some(proj) = self.intr.project(&x) else { continue };
                 let sw = ws.w[kk].sqrt();
                 let r = (proj - ws.targets[kk]) * sw;
-                let d = dpi_dx(&self.intr, &x) * sw;
+                let pj = point_jacobian(&self.intr, &rp, &x.coords);
+                let d = pj.d_point_matrix() * sw;
                 for i in 0..m {
                     ws.jac[i] = d * (rc.matrix() * (a * md.deltas[i * k + kk]));
                 }
                 ws.jac[m] = d * (rc.matrix() * (md.axis.cross(&(rj * (pm - md.pivot))) * wj));
                 // Pose: X = exp([w]) R P + t + tau  =>  dX/dw = -[R P]x, dX/dtau = I.
-                let skew = -rp.cross_matrix();
-                let jw = d * skew;
-                let mut jp = nalgebra::Matrix2x6::<f64>::zeros();
-                jp.fixed_view_mut::<2, 3>(0, 0).copy_from(&jw);
-                jp.fixed_view_mut::<2, 3>(0, 3).copy_from(&d);
+                let jp = pj.d_pose_matrix() * sw;
                 hpp += jp.transpose() * jp;
                 gp += jp.transpose() * r;
                 for i in 0..nb {
@@ -853,11 +838,7 @@ impl MuscleTracker {
                     ws.trial[i] = (out.contractions[i] + t * ws.step[i]).clamp(0.0, 1.0);
                 }
                 let theta = (out.jaw + t * ws.step[m]).clamp(0.0, max_jaw);
-                let rot = nalgebra::UnitQuaternion::from_scaled_axis(dp.fixed_rows::<3>(0) * t);
-                let pose = ModelToCamera(nalgebra::Isometry3::from_parts(
-                    (out.pose.0.translation.vector + dp.fixed_rows::<3>(3) * t).into(),
-                    rot * out.pose.0.rotation,
-                ));
+                let pose = apply_pose_step(&out.pose, &dp.into(), t);
                 let c = self.cost_full(ws, &ws.trial[..m], theta, &pose);
                 if c <= cost {
                     let rel = (cost - c) / cost.max(1e-300);

@@ -27,16 +27,12 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
-use facecap_io::video::y4m::{parse_header, Y4mHeader, MAGIC};
-use facecap_io::video::yuv::{apply_lut, limited_to_full_luma_lut, ColorRange};
-use facecap_io::video::{Frame, FrameSource, SourceKind, VideoInfo};
+use facecap_io::video::y4m::Y4mReader;
+use facecap_io::video::yuv::limited_to_full_luma_lut;
+use facecap_io::video::{Frame, FrameSource, SourceKind, SourceOptions, VideoInfo};
 
 use crate::error::{Error, Result};
 
-/// Longest accepted Y4M stream header line (bytes).
-const MAX_HEADER_LEN: usize = 1024;
-/// Longest accepted `FRAME` line (bytes).
-const MAX_FRAME_HEADER_LEN: usize = 1024;
 /// Arrival times kept (frames); the consumer is never more than a few frames behind.
 const ARRIVALS_KEPT: usize = 256;
 /// How often a waiting consumer checks the stop flag.
@@ -253,53 +249,16 @@ impl ChildGuard {
     }
 }
 
-/// A Y4M stream from any reader (module docs). Chroma is read and discarded: live
-/// tracking needs the grey (luma) plane only.
+/// A Y4M stream from any reader (module docs): `facecap-io`'s [`Y4mReader`] (grey frames,
+/// [`facecap_io::video::Luma::Full`]) with the `ffmpeg` child that writes it, if any.
 pub struct Y4mStream {
-    reader: BufReader<Box<dyn Read + Send>>,
-    name: PathBuf,
-    info: VideoInfo,
-    header: Y4mHeader,
-    line: Vec<u8>,
-    chroma: Vec<u8>,
-    lut: Option<[u8; 256]>,
-    next_index: u64,
+    inner: Y4mReader<BufReader<Box<dyn Read + Send>>>,
     child: Option<ChildGuard>,
-    done: bool,
 }
 
 impl std::fmt::Debug for Y4mStream {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Y4mStream")
-            .field("name", &self.name)
-            .field("info", &self.info)
-            .field("next_index", &self.next_index)
-            .finish()
-    }
-}
-
-/// Reads up to `\n` (not included) into `line`; `Ok(false)` at EOF before any byte.
-/// Sets `*complete` when the newline was found within `max` bytes.
-fn read_line(r: &mut impl Read, line: &mut Vec<u8>, max: usize, complete: &mut bool) -> std::io::Result<bool> {
-    line.clear();
-    *complete = false;
-    let mut b = [0u8; 1];
-    loop {
-        match r.read(&mut b) {
-            Ok(0) => return Ok(!line.is_empty()),
-            Ok(_) if b[0] == b'\n' => {
-                *complete = true;
-                return Ok(true);
-            }
-            Ok(_) => {
-                line.push(b[0]);
-                if line.len() > max {
-                    return Ok(true);
-                }
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
+        f.debug_struct("Y4mStream").field("inner", &self.inner).finish()
     }
 }
 
@@ -318,93 +277,19 @@ impl Y4mStream {
     /// # Errors
     /// A stream that does not start with a valid Y4M header.
     pub fn with_guard(reader: Box<dyn Read + Send>, name: PathBuf, child: Option<ChildGuard>) -> Result<Self> {
-        let mut reader = BufReader::with_capacity(1 << 16, reader);
-        let mut line = Vec::with_capacity(128);
-        let mut complete = false;
-        let got = read_line(&mut reader, &mut line, MAX_HEADER_LEN, &mut complete)
-            .map_err(|e| facecap_core::Error::io(&name, e))?;
-        let magic = MAGIC.strip_suffix(b" ").unwrap_or(MAGIC);
-        if !got || !complete || !line.starts_with(magic) {
-            let shown: String = String::from_utf8_lossy(&line).chars().take(24).collect();
-            return Err(facecap_core::Error::parse(
+        let reader = BufReader::with_capacity(1 << 16, reader);
+        let inner = Y4mReader::new(reader, &name, &SourceOptions::default()).map_err(|e| match e {
+            facecap_core::Error::Parse { reason, .. } => facecap_core::Error::parse(
                 "Y4M",
                 &name,
                 format!(
-                    "the stream does not start with a YUV4MPEG2 header line (got {shown:?}); \
+                    "the stream does not start with a YUV4MPEG2 header line ({reason}); \
                      send Y4M, e.g. `ffmpeg -re -i CLIP -f yuv4mpegpipe - | facecap live -`"
                 ),
-            )
-            .into());
-        }
-        let header = parse_header(&name, &line)?;
-        let fps = f64::from(header.fps_num) / f64::from(header.fps_den);
-        let chroma_len = header.frame_len() - header.width as usize * header.height as usize;
-        let info = VideoInfo {
-            width: header.width,
-            height: header.height,
-            fps,
-            frame_count: None,
-            duration_s: None,
-            codec: format!("y4m {}", header.colorspace),
-            kind: SourceKind::Y4m,
-        };
-        Ok(Y4mStream {
-            reader,
-            info,
-            lut: (header.range == ColorRange::Limited).then(limited_to_full_luma_lut),
-            chroma: vec![0; chroma_len],
-            header,
-            line,
-            name,
-            next_index: 0,
-            child,
-            done: false,
-        })
-    }
-
-    fn err(&self, reason: impl Into<String>) -> Error {
-        facecap_core::Error::Decode {
-            path: self.name.clone(),
-            frame: Some(self.next_index),
-            reason: reason.into(),
-        }
-        .into()
-    }
-
-    fn read_frame(&mut self, frame: &mut Frame) -> Result<bool> {
-        let mut complete = false;
-        let got = read_line(&mut self.reader, &mut self.line, MAX_FRAME_HEADER_LEN, &mut complete)
-            .map_err(|e| facecap_core::Error::io(&self.name, e))?;
-        if !got {
-            return Ok(false);
-        }
-        if !complete || !self.line.starts_with(b"FRAME") {
-            let shown: String = String::from_utf8_lossy(&self.line).chars().take(20).collect();
-            return Err(self.err(format!("expected a FRAME header, found {shown:?}")));
-        }
-        let (w, h) = (self.header.width, self.header.height);
-        if frame.gray.width() != w || frame.gray.height() != h {
-            frame.gray = image::GrayImage::new(w, h);
-        }
-        frame.rgb = None;
-        let mut planes = || -> std::io::Result<()> {
-            self.reader.read_exact(frame.gray.as_mut())?;
-            self.reader.read_exact(&mut self.chroma)
-        };
-        if let Err(e) = planes() {
-            return Err(if e.kind() == std::io::ErrorKind::UnexpectedEof {
-                self.err("the stream ends inside a frame")
-            } else {
-                facecap_core::Error::io(&self.name, e).into()
-            });
-        }
-        if let Some(lut) = &self.lut {
-            apply_lut(&mut frame.gray, lut);
-        }
-        frame.index = self.next_index;
-        frame.timestamp_s = self.next_index as f64 / self.info.fps;
-        self.next_index += 1;
-        Ok(true)
+            ),
+            other => other,
+        })?;
+        Ok(Y4mStream { inner, child })
     }
 }
 
@@ -418,29 +303,15 @@ impl Drop for Y4mStream {
 
 impl FrameSource for Y4mStream {
     fn info(&self) -> &VideoInfo {
-        &self.info
+        self.inner.info()
     }
 
     fn path(&self) -> &Path {
-        &self.name
+        self.inner.path()
     }
 
     fn read_into(&mut self, frame: &mut Frame) -> facecap_core::Result<bool> {
-        if self.done {
-            return Ok(false);
-        }
-        let r = self.read_frame(frame);
-        if !matches!(r, Ok(true)) {
-            self.done = true;
-        }
-        r.map_err(|e| match e {
-            Error::Core(c) => c,
-            other => facecap_core::Error::Decode {
-                path: self.name.clone(),
-                frame: Some(self.next_index),
-                reason: other.to_string(),
-            },
-        })
+        self.inner.read_into(frame)
     }
 }
 
@@ -823,13 +694,11 @@ impl FrameSource for LatestFrame {
 mod tests {
     use super::*;
 
-    fn y4m_bytes(w: usize, h: usize, frames: &[u8]) -> Vec<u8> {
-        let mut b = format!("YUV4MPEG2 W{w} H{h} F30:1 C420jpeg\n").into_bytes();
-        for &v in frames {
-            b.extend_from_slice(b"FRAME\n");
-            b.extend(std::iter::repeat(v).take(w * h));
-            b.extend(std::iter::repeat(128).take(2 * w.div_ceil(2) * h.div_ceil(2)));
-        }
+    /// A 4:2:0 Y4M stream of flat grey frames (`facecap-io`'s writer).
+    fn y4m_bytes(w: u32, h: u32, frames: &[u8]) -> Vec<u8> {
+        let images: Vec<_> = frames.iter().map(|&v| image::GrayImage::from_pixel(w, h, image::Luma([v]))).collect();
+        let mut b = Vec::new();
+        facecap_io::video::y4m::write_gray_y4m(&mut b, &images, 30, 1, false).unwrap();
         b
     }
 

@@ -110,14 +110,29 @@ pub enum FrontEnd {
     Mesh,
 }
 
+impl FrontEnd {
+    /// The name of the front end: the value of `--landmarks`, also in `summary.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            FrontEnd::Dlib68 => "dlib68",
+            FrontEnd::Mesh => "mesh",
+        }
+    }
+}
+
+impl std::fmt::Display for FrontEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl std::str::FromStr for FrontEnd {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "dlib68" => Ok(FrontEnd::Dlib68),
-            "mesh" => Ok(FrontEnd::Mesh),
-            _ => Err(Error::invalid("landmark front end", s, "`dlib68` or `mesh`")),
-        }
+        [FrontEnd::Dlib68, FrontEnd::Mesh]
+            .into_iter()
+            .find(|f| f.name() == s)
+            .ok_or_else(|| Error::invalid("landmark front end", s, "`dlib68` or `mesh`"))
     }
 }
 

@@ -165,3 +165,13 @@ fn sample_policy_counts_taken_frames() {
     // every = 0 is read as 1
     assert!(FrameImages::Sample { every: 0, max: 1 }.wants(3, 0));
 }
+
+#[test]
+fn front_end_names_are_the_flag_values_and_parse_back() {
+    use facecap_pipeline::FrontEnd;
+    for (f, name) in [(FrontEnd::Dlib68, "dlib68"), (FrontEnd::Mesh, "mesh")] {
+        assert_eq!(f.to_string(), name);
+        assert_eq!(name.parse::<FrontEnd>().unwrap(), f);
+    }
+    assert!("Dlib68".parse::<FrontEnd>().is_err());
+}

@@ -15,7 +15,10 @@
 //! 1. Start: the previous frame's pose and weights (warm start), else an affine-camera fit
 //!    (linear least squares of a `2 x 4` projection, rows orthonormalised, depth from its scale).
 //! 2. Rigid update: `pose_iterations` Levenberg-Marquardt steps on the 6 pose parameters
-//!    (left-multiplied rotation increment `exp([w]x) R`, `t + dt`), weights fixed.
+//!    (left-multiplied rotation increment `exp([w]x) R`, `t + dt`), weights fixed: the
+//!    shared pose refinement [`facecap_geom::pnp::refine_pose`], whose Jacobian
+//!    ([`facecap_geom::pnp::point_jacobian`]) and update ([`facecap_geom::pnp::apply_pose_step`])
+//!    the joint step below uses too.
 //! 3. Bounded QP: the projection is linearised at the current pose and weights,
 //!    `r(z) = r_0 + A_p dp + A_e (e' - e)`, and the convex box QP in `z = (dp, e')` (pose increments
 //!    unbounded, `e' in [0,1]^n`) is solved exactly ([`facecap_geom::qp`]). With `joint = false` only `e'`
@@ -34,13 +37,12 @@
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
-use nalgebra::{
-    Isometry3, Matrix4, Matrix6, Point2, Rotation3, Translation3, UnitQuaternion, Vector3, Vector4, Vector6,
-};
+use nalgebra::{Isometry3, Matrix4, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector4};
 
 use crate::error::{check_count, check_range, Error, Result};
 use crate::rig::BlendshapeRig;
 use crate::solver::{check_io, ExpressionSolver, ObjectiveParams, Report, Solution, SolveState, StopReason};
+use facecap_geom::pnp::{apply_pose_step, point_jacobian, refine_pose, PnpParams};
 use facecap_geom::qp::{solve_box_qp, QpOptions, QpWorkspace};
 
 /// Parameters of [`Exact3dSolver`] (table in the module docs).
@@ -90,6 +92,9 @@ impl Exact3dParams {
 const POSE: usize = 6;
 /// Smallest depth (model units) a landmark may have in front of the camera.
 const MIN_DEPTH: f64 = 1e-6;
+/// Initial damping of the rigid update's Levenberg-Marquardt (relative to the diagonal):
+/// small, since the pose is warm-started near its optimum.
+const RIGID_DAMPING0: f64 = 1e-6;
 /// Backtracking halvings of the QP step.
 const MAX_HALVINGS: usize = 30;
 /// A weight above this counts as active for the exclusive pairs.
@@ -219,6 +224,10 @@ pub struct Exact3dWorkspace {
     e_trial: Vec<f64>,
     /// This frame's effective ridge per shape (`s * ridge_i`).
     rho: Vec<f64>,
+    /// The rigid step's correspondences: posed model points, observations, point weights.
+    rigid_model: Vec<Point3<f64>>,
+    rigid_image: Vec<Point2<f64>>,
+    rigid_w: Vec<f64>,
     qp: QpWorkspace,
 }
 
@@ -244,11 +253,8 @@ impl Pose {
     }
 
     fn step(&self, dp: &[f64], alpha: f64) -> Pose {
-        let w = Vector3::new(dp[0], dp[1], dp[2]) * alpha;
-        Pose {
-            r: Rotation3::new(w) * self.r,
-            t: self.t + Vector3::new(dp[3], dp[4], dp[5]) * alpha,
-        }
+        let step = [dp[0], dp[1], dp[2], dp[3], dp[4], dp[5]];
+        Pose::from_model_to_camera(&apply_pose_step(&self.to_model_to_camera(), &step, alpha))
     }
 }
 
@@ -387,26 +393,21 @@ impl Exact3dSolver {
             if c.z <= MIN_DEPTH {
                 return false;
             }
-            let iz = 1.0 / c.z;
             let sw = self.sqrt_w[j];
-            ws.r[2 * j] = sw * (k.fx * c.x * iz + k.cx - ws.obs[2 * j]);
-            ws.r[2 * j + 1] = sw * (k.fy * c.y * iz + k.cy - ws.obs[2 * j + 1]);
-            // d pi / d c (rows scaled by the point weight)
-            let ju = [sw * k.fx * iz, 0.0, -sw * k.fx * c.x * iz * iz];
-            let jv = [0.0, sw * k.fy * iz, -sw * k.fy * c.y * iz * iz];
-            // d c / d w = -[R x]_x
-            let dw = [[0.0, rx.z, -rx.y], [-rx.z, 0.0, rx.x], [rx.y, -rx.x, 0.0]];
+            // Pixel, d pi / d c and d pi / d (w, t) (rows scaled by the point weight).
+            let jac = point_jacobian(k, &rx, &c);
+            ws.r[2 * j] = sw * (jac.pixel[0] - ws.obs[2 * j]);
+            ws.r[2 * j + 1] = sw * (jac.pixel[1] - ws.obs[2 * j + 1]);
             let (ru, rv) = (2 * j * cols, (2 * j + 1) * cols);
-            for a in 0..3 {
-                ws.a[ru + a] = (0..3).map(|b| ju[b] * dw[b][a]).sum();
-                ws.a[rv + a] = (0..3).map(|b| jv[b] * dw[b][a]).sum();
-                ws.a[ru + 3 + a] = ju[a];
-                ws.a[rv + 3 + a] = jv[a];
+            for a in 0..POSE {
+                ws.a[ru + a] = sw * jac.d_pose[0][a];
+                ws.a[rv + a] = sw * jac.d_pose[1][a];
             }
+            let [ju, jv] = jac.d_point;
             for kk in 0..n {
                 let d = pose.r * self.deltas[j * n + kk];
-                ws.a[ru + POSE + kk] = ju[0] * d.x + ju[2] * d.z;
-                ws.a[rv + POSE + kk] = jv[1] * d.y + jv[2] * d.z;
+                ws.a[ru + POSE + kk] = sw * (ju[0] * d.x + ju[2] * d.z);
+                ws.a[rv + POSE + kk] = sw * (jv[1] * d.y + jv[2] * d.z);
             }
         }
         true
@@ -453,52 +454,37 @@ impl Exact3dSolver {
         })
     }
 
-    /// Levenberg-Marquardt on the pose only (weights fixed). Returns the new cost.
-    fn rigid_update(&self, pose: &mut Pose, mut cost: f64, prev: Option<&[f64]>, ws: &mut Exact3dWorkspace) -> f64 {
-        let cols = POSE + self.n;
-        let mut damping = 1e-6;
-        for _ in 0..self.params.pose_iterations {
-            if !self.linearise(pose, ws) {
-                break;
-            }
-            let mut jtj = Matrix6::<f64>::zeros();
-            let mut jtr = Vector6::<f64>::zeros();
-            for row in 0..ws.r.len() {
-                let jr = &ws.a[row * cols..row * cols + POSE];
-                for a in 0..POSE {
-                    jtr[a] += jr[a] * ws.r[row];
-                    for b in 0..POSE {
-                        jtj[(a, b)] += jr[a] * jr[b];
-                    }
-                }
-            }
-            let mut improved = false;
-            for _ in 0..8 {
-                let mut lhs = jtj;
-                for a in 0..POSE {
-                    lhs[(a, a)] *= 1.0 + damping;
-                }
-                let Some(ch) = lhs.cholesky() else {
-                    damping *= 10.0;
-                    continue;
-                };
-                let d = ch.solve(&(-jtr));
-                let trial = pose.step(d.as_slice(), 1.0);
-                let c = self.cost(&trial, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
-                if c < cost {
-                    *pose = trial;
-                    cost = c;
-                    damping = (damping * 0.1).max(1e-12);
-                    improved = true;
-                    break;
-                }
-                damping *= 10.0;
-            }
-            if !improved {
-                break;
-            }
+    /// The rigid update (weights fixed): `pose_iterations` iterations of the shared
+    /// Levenberg-Marquardt pose refinement ([`facecap_geom::pnp::refine_pose`]) on the
+    /// landmark-weighted reprojection error, kept when it lowers `F`. Returns the new cost.
+    fn rigid_update(&self, pose: &mut Pose, cost: f64, prev: Option<&[f64]>, ws: &mut Exact3dWorkspace) -> f64 {
+        if self.params.pose_iterations == 0 {
+            return cost;
         }
-        cost
+        self.pose_points(&ws.e, &mut ws.posed);
+        for (j, x) in ws.posed.iter().enumerate() {
+            ws.rigid_model[j] = Point3::from(*x);
+            ws.rigid_image[j] = Point2::new(ws.obs[2 * j], ws.obs[2 * j + 1]);
+            ws.rigid_w[j] = self.sqrt_w[j] * self.sqrt_w[j];
+        }
+        let lm = PnpParams {
+            max_iterations: self.params.pose_iterations,
+            initial_damping: RIGID_DAMPING0,
+            ..PnpParams::default()
+        };
+        let mut refined = pose.to_model_to_camera();
+        let k = &self.params.camera;
+        if refine_pose(&mut refined, k, &ws.rigid_model, &ws.rigid_image, Some(&ws.rigid_w), &lm).is_err() {
+            return cost;
+        }
+        let trial = Pose::from_model_to_camera(&refined);
+        let c = self.cost(&trial, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
+        if c < cost {
+            *pose = trial;
+            c
+        } else {
+            cost
+        }
     }
 }
 
@@ -534,6 +520,9 @@ impl ExpressionSolver for Exact3dSolver {
             e: vec![0.0; n],
             e_trial: vec![0.0; n],
             rho: vec![0.0; n],
+            rigid_model: vec![Point3::origin(); m],
+            rigid_image: vec![Point2::origin(); m],
+            rigid_w: vec![0.0; m],
             qp: QpWorkspace::new(cols),
         }
     }

@@ -26,7 +26,7 @@
 //!
 //! **One sweep** (thesis order: pose, expression, identity):
 //! 1. pose by PnP on the current model points: Levenberg-Marquardt on the perspective
-//!    reprojection error ([`facecap_geom::pose::refine_perspective`], at most `pose_iterations`
+//!    reprojection error ([`facecap_geom::pnp::refine_pose`], weighted, at most `pose_iterations`
 //!    iterations), warm-started from the state's pose, or, when the previous pose step
 //!    from that same pose was rejected, from the pose that step found (same optimum,
 //!    reached in one pass instead of several); then `z`; the step is accepted only if
@@ -51,6 +51,7 @@
 //! allocator).
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
+use facecap_geom::pnp::{refine_pose, PnpParams};
 use facecap_geom::{cholesky::dot, nnls, pose};
 use nalgebra::{Point2, Point3};
 
@@ -585,13 +586,17 @@ impl Fitter {
             (Some(p), _) => p,
             (None, _) => pose::init_scaled_orthographic(&ws.pts, input.image, input.weights, &input.intrinsics)?,
         };
-        pose::refine_perspective(
+        let lm = PnpParams {
+            max_iterations: self.params.pose_iterations,
+            ..PnpParams::default()
+        };
+        refine_pose(
+            &mut cand,
+            &input.intrinsics,
             &ws.pts,
             input.image,
-            input.weights,
-            &input.intrinsics,
-            &mut cand,
-            self.params.pose_iterations,
+            Some(input.weights),
+            &lm,
         )?;
         match old {
             None => {

@@ -169,13 +169,13 @@ pub fn parse_header(path: &Path, line: &[u8]) -> Result<Y4mHeader> {
     })
 }
 
-/// Reads a Y4M file frame by frame (see the module docs).
-#[derive(Debug)]
-pub struct Y4mSource {
+/// Reads a Y4M stream frame by frame from any reader: a file ([`Y4mSource`]) or a pipe
+/// (the live input's stdin or ffmpeg's stdout); see the module docs.
+pub struct Y4mReader<R> {
     path: PathBuf,
     info: VideoInfo,
     header: Y4mHeader,
-    reader: BufReader<File>,
+    reader: R,
     next_index: u64,
     line: Vec<u8>,
     chroma: Vec<u8>,
@@ -185,6 +185,20 @@ pub struct Y4mSource {
     rgb: bool,
     conv: YuvToRgb,
     done: bool,
+}
+
+/// A Y4M file (seekable: [`Y4mSource::rewind`], frame count from the file size).
+pub type Y4mSource = Y4mReader<BufReader<File>>;
+
+impl<R> std::fmt::Debug for Y4mReader<R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Y4mReader")
+            .field("path", &self.path)
+            .field("info", &self.info)
+            .field("header", &self.header)
+            .field("next_index", &self.next_index)
+            .finish()
+    }
 }
 
 /// Reads bytes up to (not including) `\n` into `line`. Returns `Ok(false)` on EOF before
@@ -218,10 +232,42 @@ impl Y4mSource {
         opts.validate()?;
         let file = File::open(path).map_err(|e| Error::io(path, e))?;
         let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-        let mut reader = BufReader::with_capacity(1 << 16, file);
+        Y4mReader::with_len(BufReader::with_capacity(1 << 16, file), path, opts, Some(file_len))
+    }
+
+    /// Rewinds to the first frame.
+    pub fn rewind(&mut self) -> Result<()> {
+        self.reader
+            .seek(SeekFrom::Start(0))
+            .map_err(|e| Error::io(&self.path, e))?;
+        let mut complete = false;
+        read_line(&mut self.reader, &mut self.line, MAX_HEADER_LEN, &mut complete)
+            .map_err(|e| Error::io(&self.path, e))?;
+        self.next_index = 0;
+        self.done = false;
+        Ok(())
+    }
+}
+
+impl<R: Read> Y4mReader<R> {
+    /// Reads the stream header from `reader` (buffer it: the reader is read a line at a
+    /// time); `path` names the stream in errors. The frame count is unknown.
+    ///
+    /// # Errors
+    /// A stream that does not start with a valid header line, invalid options.
+    pub fn new(reader: R, path: &Path, opts: &SourceOptions) -> Result<Self> {
+        opts.validate()?;
+        Self::with_len(reader, path, opts, None)
+    }
+
+    /// The reader of a stream of `len` bytes in all, when known.
+    fn with_len(mut reader: R, path: &Path, opts: &SourceOptions, len: Option<u64>) -> Result<Self> {
         let mut line = Vec::with_capacity(128);
         let mut complete = false;
-        read_line(&mut reader, &mut line, MAX_HEADER_LEN, &mut complete).map_err(|e| Error::io(path, e))?;
+        let got = read_line(&mut reader, &mut line, MAX_HEADER_LEN, &mut complete).map_err(|e| Error::io(path, e))?;
+        if !got {
+            return Err(Error::parse("Y4M", path, "empty stream: no header line"));
+        }
         if !complete {
             return Err(Error::parse(
                 "Y4M",
@@ -231,10 +277,10 @@ impl Y4mSource {
         }
         let header = parse_header(path, &line)?;
         let header_len = line.len() as u64 + 1;
+        let body = len.map_or(0, |l| l.saturating_sub(header_len));
         // Exact frame count when every frame header is a bare "FRAME\n".
         let per_frame = header.frame_len() as u64 + 6;
-        let body = file_len.saturating_sub(header_len);
-        let frame_count = (body % per_frame == 0).then_some(body / per_frame);
+        let frame_count = len.and_then(|_| (body % per_frame == 0).then_some(body / per_frame));
         let fps = f64::from(header.fps_num) / f64::from(header.fps_den);
         let info = VideoInfo {
             width: header.width,
@@ -247,7 +293,7 @@ impl Y4mSource {
         };
         let lut = (opts.luma == Luma::Full && header.range == ColorRange::Limited).then(limited_to_full_luma_lut);
         let conv = YuvToRgb::new(ColorMatrix::Bt601, header.range);
-        Ok(Y4mSource {
+        Ok(Y4mReader {
             path: path.to_path_buf(),
             info,
             chroma: Vec::new(),
@@ -284,7 +330,7 @@ impl Y4mSource {
             return Ok(false);
         }
         if !complete {
-            return Err(self.err("file ends inside the FRAME header (truncated file)"));
+            return Err(self.err("the stream ends inside the FRAME header (truncated)"));
         }
         if !(self.line.starts_with(b"FRAME") && (self.line.len() == 5 || self.line[5] == b' ')) {
             let shown: String = String::from_utf8_lossy(&self.line).chars().take(20).collect();
@@ -296,7 +342,7 @@ impl Y4mSource {
         // otherwise reserve 1.5 GB for nothing). Buffers are allocated on the first frame.
         if self.next_index == 0 && self.body_len > 0 && self.header.frame_len() as u64 > self.body_len {
             return Err(self.err(format!(
-                "file ends inside the frame data ({} bytes per frame for {w}x{h}, {} bytes after the header; truncated file)",
+                "the stream ends inside the frame data ({} bytes per frame for {w}x{h}, {} bytes after the header; truncated)",
                 self.header.frame_len(),
                 self.body_len
             )));
@@ -306,7 +352,7 @@ impl Y4mSource {
         let truncated = |s: &Self, e: std::io::Error| {
             if e.kind() == std::io::ErrorKind::UnexpectedEof {
                 s.err(format!(
-                    "file ends inside the frame data ({} bytes per frame; truncated file)",
+                    "the stream ends inside the frame data ({} bytes per frame; truncated)",
                     s.header.frame_len()
                 ))
             } else {
@@ -325,7 +371,7 @@ impl Y4mSource {
             let skipped = std::io::copy(&mut (&mut self.reader).take(n), &mut std::io::sink())
                 .map_err(|e| Error::io(&self.path, e))?;
             if skipped != n {
-                return Err(self.err("file ends inside the alpha plane (truncated file)"));
+                return Err(self.err("the stream ends inside the alpha plane (truncated)"));
             }
         }
         ensure_rgb(&mut frame.rgb, self.rgb, w, h);
@@ -352,22 +398,9 @@ impl Y4mSource {
         self.next_index += 1;
         Ok(true)
     }
-
-    /// Rewinds to the first frame.
-    pub fn rewind(&mut self) -> Result<()> {
-        self.reader
-            .seek(SeekFrom::Start(0))
-            .map_err(|e| Error::io(&self.path, e))?;
-        let mut complete = false;
-        read_line(&mut self.reader, &mut self.line, MAX_HEADER_LEN, &mut complete)
-            .map_err(|e| Error::io(&self.path, e))?;
-        self.next_index = 0;
-        self.done = false;
-        Ok(())
-    }
 }
 
-impl FrameSource for Y4mSource {
+impl<R: Read + Send> FrameSource for Y4mReader<R> {
     fn info(&self) -> &VideoInfo {
         &self.info
     }

@@ -501,6 +501,14 @@ impl ShapePredictor {
     }
 
     /// The 2x2 similarity (row-major, f32) mapping the mean shape onto `shape`.
+    ///
+    /// Kept here rather than on `facecap_geom::align` on purpose: it is the closed form of
+    /// dlib's `find_similarity_transform` for this cascade only (interleaved f32 shape, the
+    /// mean shape centred and its norm computed once per model, no translation), and its
+    /// sums run in the order that keeps the f32 result equal to dlib's, which the dlib
+    /// fixtures of the ERT tests check to the bit. A change of summation order (as a
+    /// general fit over `Point2<f64>` would make) moves the cascade's features, and the
+    /// regression trees amplify such last-bit changes.
     fn similarity(&self, shape: &[f32]) -> [f32; 4] {
         let parts = shape.len() / 2;
         if parts == 1 || self.initial_norm2 == 0.0 {

@@ -12,6 +12,11 @@ use super::ErtModel;
 
 /// Umeyama (1991) similarity from `from` to `to` (both `2P` interleaved), the 2x2
 /// part only, as dlib's `find_similarity_transform` (f64).
+///
+/// Deliberately not `facecap_geom::align::umeyama2`: this reference follows dlib's code
+/// line by line (SVD, reflection handling, the same sums) so that the optimised
+/// predictor can be checked against dlib itself, bit for bit where dlib's rounding
+/// allows; a shared fit with another summation order would test against something else.
 pub fn find_similarity_2x2(from: &[f32], to: &[f32]) -> Matrix2<f64> {
     let n = from.len() / 2;
     if n == 1 {

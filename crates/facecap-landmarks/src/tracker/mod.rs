@@ -73,6 +73,7 @@ pub mod backends;
 pub mod one_euro;
 
 use facecap_core::landmarks::{Landmarks68, Rect, NUM_LANDMARKS};
+use facecap_geom::align::similarity2_weighted;
 use image::GrayImage;
 use nalgebra::Point2;
 
@@ -828,8 +829,9 @@ fn iod_of(pts: &[Point2<f64>]) -> f64 {
     (pts[facecap_core::landmarks::OUTER_EYE_LEFT] - pts[facecap_core::landmarks::OUTER_EYE_RIGHT]).norm()
 }
 
-/// Fits the least-squares similarity `from -> to` over tracked points and writes
-/// `T(apply)` into `out` (`apply` unchanged when the fit is degenerate).
+/// Fits the least-squares similarity `from -> to` over tracked points
+/// ([`facecap_geom::align::similarity2_weighted`], lost points masked out, no allocation)
+/// and writes `T(apply)` into `out` (`apply` unchanged when the fit is degenerate).
 fn fit_similarity_apply(
     from: &[Point2<f64>],
     to: &[Point2<f64>],
@@ -837,38 +839,13 @@ fn fit_similarity_apply(
     apply: &[Point2<f64>],
     out: &mut [Point2<f64>],
 ) {
-    let (mut fx, mut fy, mut tx, mut ty, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for ((f, t), s) in from.iter().zip(to).zip(st) {
-        if s.is_tracked() {
-            fx += f.x;
-            fy += f.y;
-            tx += t.x;
-            ty += t.y;
-            n += 1.0;
+    let tracked = |i: usize| if st.get(i).is_some_and(|s| s.is_tracked()) { 1.0 } else { 0.0 };
+    match similarity2_weighted(from, to, tracked, true) {
+        Ok(t) => {
+            for (o, f) in out.iter_mut().zip(apply) {
+                *o = t.apply(f);
+            }
         }
-    }
-    if n < 2.0 {
-        out.copy_from_slice(apply);
-        return;
-    }
-    let (fx, fy, tx, ty) = (fx / n, fy / n, tx / n, ty / n);
-    let (mut a, mut b, mut d) = (0.0, 0.0, 0.0);
-    for ((f, t), s) in from.iter().zip(to).zip(st) {
-        if s.is_tracked() {
-            let (x, y) = (f.x - fx, f.y - fy);
-            let (u, v) = (t.x - tx, t.y - ty);
-            a += x * u + y * v;
-            b += x * v - y * u;
-            d += x * x + y * y;
-        }
-    }
-    if d <= 0.0 {
-        out.copy_from_slice(apply);
-        return;
-    }
-    let (a, b) = (a / d, b / d);
-    for (o, f) in out.iter_mut().zip(apply) {
-        let (x, y) = (f.x - fx, f.y - fy);
-        *o = Point2::new(tx + a * x - b * y, ty + b * x + a * y);
+        Err(_) => out.copy_from_slice(apply),
     }
 }
