@@ -876,7 +876,7 @@ impl MuscleTracker {
                         }
                         let x = self.cam(ws, kk, &out.contractions);
                         let Some(p) = self.intr.project(&x) else { continue };
-                        let j = dpi_dx(&self.intr, &x) * ws.g[i * k + kk];
+                        let j = point_jacobian(&self.intr, &x.coords, &x.coords).d_point_matrix() * ws.g[i * k + kk];
                         h += j.norm_squared() * ws.w[kk];
                         g += j.dot(&(p - ws.targets[kk])) * ws.w[kk];
                     }
