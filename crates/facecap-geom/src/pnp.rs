@@ -345,7 +345,7 @@ pub fn refine_pose(
 ) -> Result<PnpReport> {
     check_weights(model.len(), image.len(), weights)?;
     let weight = |i: usize| weights.map_or(1.0, |w| w[i]);
-    let wsum: f64 = (0..model.len()).map(|i| weight(i)).filter(|w| *w > 0.0).sum();
+    let wsum: f64 = (0..model.len()).map(&weight).filter(|w| *w > 0.0).sum();
     let rms = |sse: f64| if wsum > 0.0 { (sse / wsum).sqrt() } else { 0.0 };
     // The rotation as a matrix once per pose (9 multiplications per point instead of
     // the quaternion's ~30). The same arithmetic as the residuals of the normal-equations
