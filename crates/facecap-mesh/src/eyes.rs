@@ -21,9 +21,12 @@ pub const RIGHT_IRIS_CENTER: usize = crate::tracker::IRIS_CENTERS[0];
 /// Iris centre of the subject's left eye.
 pub const LEFT_IRIS_CENTER: usize = crate::tracker::IRIS_CENTERS[1];
 
+/// One eye in image pixels: its six outline points `(x, y)` and its iris centre.
+pub type EyePoints = ([(f64, f64); 6], (f64, f64));
+
 /// One eye's outline `(x, y)` and iris centre from a mesh's points (`None` when it has
 /// fewer than the 478 points).
-pub fn eye(points: &[[f32; 3]], outline: &[usize; 6], iris: usize) -> Option<([(f64, f64); 6], (f64, f64))> {
+pub fn eye(points: &[[f32; 3]], outline: &[usize; 6], iris: usize) -> Option<EyePoints> {
     if points.len() < crate::tracker::NUM_LANDMARKS {
         return None;
     }

@@ -194,7 +194,7 @@ enum FrontRun<'a> {
     Dlib68 {
         tracker: &'a LandmarkTracker<FaceDetector, ShapePredictor>,
         ws: Box<TrackerWorkspace<DetectorWs, ErtWorkspace>>,
-        state: TrackerState,
+        state: Box<TrackerState>,
         iris: &'a IrisEstimator,
         iris_ws: IrisWorkspace,
     },
@@ -213,7 +213,7 @@ impl<'a> FrontRun<'a> {
             Front::Dlib68 { tracker, iris } => FrontRun::Dlib68 {
                 tracker,
                 ws: Box::new(tracker.new_workspace()),
-                state: TrackerState::new(),
+                state: Box::new(TrackerState::new()),
                 iris,
                 iris_ws: iris.new_workspace(),
             },
@@ -231,7 +231,7 @@ impl<'a> FrontRun<'a> {
     /// that could not be decoded, or landmarks rejected as implausible).
     fn restart(&mut self) {
         match self {
-            FrontRun::Dlib68 { state, .. } => *state = TrackerState::new(),
+            FrontRun::Dlib68 { state, .. } => **state = TrackerState::new(),
             FrontRun::Mesh { tracker, state, .. } => *state = tracker.state(),
         }
     }
