@@ -310,8 +310,8 @@ mod v3 {
             for (r, row) in acc.iter().enumerate() {
                 let off = r * ldo;
                 let mut v = *row;
-                for j in 0..V {
-                    v[j] = activate(simd, ep.act, v[j]);
+                for vj in v.iter_mut() {
+                    *vj = activate(simd, ep.act, *vj);
                 }
                 if let Some(res) = ep.residual {
                     let base = at + off;
