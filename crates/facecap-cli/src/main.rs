@@ -31,13 +31,13 @@ mod cmd_tensor_fit;
 mod cmd_transfer;
 mod default_rig;
 mod ert_flag;
-mod upsample_flag;
 mod live_window;
 mod neutral;
 mod out;
 mod progress;
 mod report;
 mod truth;
+mod upsample_flag;
 mod warp;
 
 /// Markerless facial performance capture from monocular video.

@@ -120,7 +120,11 @@ fn weighted_moments<const D: usize>(
     for i in 0..src.len().min(dst.len()) {
         let w = weight(i);
         if !(w.is_finite() && w >= 0.0) {
-            return Err(Error::invalid("alignment weight", format!("w[{i}] = {w}"), "finite and >= 0"));
+            return Err(Error::invalid(
+                "alignment weight",
+                format!("w[{i}] = {w}"),
+                "finite and >= 0",
+            ));
         }
         if w == 0.0 {
             continue;

@@ -87,7 +87,11 @@ impl PnpParams {
             return Err(Error::invalid("rel_tol", self.rel_tol, "in [0, 1)"));
         }
         if !(self.initial_damping > 0.0 && self.initial_damping.is_finite()) {
-            return Err(Error::invalid("initial_damping", self.initial_damping, "finite and > 0"));
+            return Err(Error::invalid(
+                "initial_damping",
+                self.initial_damping,
+                "finite and > 0",
+            ));
         }
         Ok(())
     }
@@ -311,7 +315,11 @@ fn check_weights(n: usize, image: usize, weights: Option<&[f64]>) -> Result<()> 
             return Err(Error::dim("PnP point weight count", n, w.len()));
         }
         if let Some(i) = w.iter().position(|w| !(w.is_finite() && *w >= 0.0)) {
-            return Err(Error::invalid("PnP point weight", format!("w[{i}] = {}", w[i]), "finite and >= 0"));
+            return Err(Error::invalid(
+                "PnP point weight",
+                format!("w[{i}] = {}", w[i]),
+                "finite and >= 0",
+            ));
         }
     }
     Ok(())
@@ -368,7 +376,11 @@ pub fn refine_pose(
     };
     let mut lambda = params.initial_damping;
     // Cost of `pose`: from the first normal-equations pass, then from the accepted candidates.
-    let mut cur = if params.max_iterations == 0 { cost(pose) } else { f64::NAN };
+    let mut cur = if params.max_iterations == 0 {
+        cost(pose)
+    } else {
+        f64::NAN
+    };
     let mut it = 0;
     let report = |iterations: usize, sse: f64, stop: PnpStop| PnpReport {
         iterations,

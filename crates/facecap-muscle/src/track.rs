@@ -651,7 +651,14 @@ impl MuscleTracker {
         }
         match init {
             Some(mut p) => {
-                let rep = refine_pose(&mut p, &self.intr, &ws.stat_model, &ws.stat_image, None, &self.params.pnp)?;
+                let rep = refine_pose(
+                    &mut p,
+                    &self.intr,
+                    &ws.stat_model,
+                    &ws.stat_image,
+                    None,
+                    &self.params.pnp,
+                )?;
                 out.pose = p;
                 Ok(rep.rms_px)
             }

@@ -696,7 +696,10 @@ mod tests {
 
     /// A 4:2:0 Y4M stream of flat grey frames (`facecap-io`'s writer).
     fn y4m_bytes(w: u32, h: u32, frames: &[u8]) -> Vec<u8> {
-        let images: Vec<_> = frames.iter().map(|&v| image::GrayImage::from_pixel(w, h, image::Luma([v]))).collect();
+        let images: Vec<_> = frames
+            .iter()
+            .map(|&v| image::GrayImage::from_pixel(w, h, image::Luma([v])))
+            .collect();
         let mut b = Vec::new();
         facecap_io::video::y4m::write_gray_y4m(&mut b, &images, 30, 1, false).unwrap();
         b

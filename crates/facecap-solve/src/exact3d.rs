@@ -474,7 +474,16 @@ impl Exact3dSolver {
         };
         let mut refined = pose.to_model_to_camera();
         let k = &self.params.camera;
-        if refine_pose(&mut refined, k, &ws.rigid_model, &ws.rigid_image, Some(&ws.rigid_w), &lm).is_err() {
+        if refine_pose(
+            &mut refined,
+            k,
+            &ws.rigid_model,
+            &ws.rigid_image,
+            Some(&ws.rigid_w),
+            &lm,
+        )
+        .is_err()
+        {
             return cost;
         }
         let trial = Pose::from_model_to_camera(&refined);

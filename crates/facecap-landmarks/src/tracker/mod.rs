@@ -839,7 +839,13 @@ fn fit_similarity_apply(
     apply: &[Point2<f64>],
     out: &mut [Point2<f64>],
 ) {
-    let tracked = |i: usize| if st.get(i).is_some_and(|s| s.is_tracked()) { 1.0 } else { 0.0 };
+    let tracked = |i: usize| {
+        if st.get(i).is_some_and(|s| s.is_tracked()) {
+            1.0
+        } else {
+            0.0
+        }
+    };
     match similarity2_weighted(from, to, tracked, true) {
         Ok(t) => {
             for (o, f) in out.iter_mut().zip(apply) {
