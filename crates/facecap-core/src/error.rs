@@ -95,6 +95,19 @@ impl Error {
         }
     }
 
+    /// A [`Error::Parse`] made by a parser of in-memory text, given the path of the file
+    /// the text came from; other errors are returned unchanged.
+    pub fn at_path(self, path: &std::path::Path) -> Self {
+        match self {
+            Error::Parse { format, reason, .. } => Error::Parse {
+                format,
+                path: path.to_path_buf(),
+                reason,
+            },
+            other => other,
+        }
+    }
+
     /// Builds a [`Error::InvalidParameter`].
     pub fn invalid(name: &'static str, value: impl ToString, expected: impl Into<String>) -> Self {
         Error::InvalidParameter {

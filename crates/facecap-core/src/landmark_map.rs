@@ -38,14 +38,7 @@ impl LandmarkMap {
     /// Reads one of the JSON forms in the module docs.
     pub fn from_json_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        Self::from_json_str(&text).map_err(|e| match e {
-            Error::Parse { format, reason, .. } => Error::Parse {
-                format,
-                path: path.to_path_buf(),
-                reason,
-            },
-            other => other,
-        })
+        Self::from_json_str(&text).map_err(|e| e.at_path(path))
     }
 
     /// Parses one of the JSON forms in the module docs.

@@ -340,14 +340,7 @@ pub struct MeshRecord {
 pub fn read_frame_csv(path: impl AsRef<Path>) -> Result<FrameTable> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_frame_csv(&bytes).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    parse_frame_csv(&bytes).map_err(|e| e.at_path(path))
 }
 
 fn perr(line: usize, reason: impl std::fmt::Display) -> Error {
@@ -444,14 +437,7 @@ pub fn parse_frame_csv(bytes: &[u8]) -> Result<FrameTable> {
 pub fn read_landmarks_csv(path: impl AsRef<Path>) -> Result<Vec<LandmarkRecord>> {
     let path = path.as_ref();
     let table = read_frame_csv(path)?;
-    landmarks_from_table(&table).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    landmarks_from_table(&table).map_err(|e| e.at_path(path))
 }
 
 /// Extracts landmarks from a parsed table (see [`read_landmarks_csv`]).
@@ -513,14 +499,7 @@ pub fn landmarks_from_table(table: &FrameTable) -> Result<Vec<LandmarkRecord>> {
 pub fn read_mesh_csv(path: impl AsRef<Path>) -> Result<Vec<MeshRecord>> {
     let path = path.as_ref();
     let table = read_frame_csv(path)?;
-    mesh_from_table(&table).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    mesh_from_table(&table).map_err(|e| e.at_path(path))
 }
 
 /// Extracts the mesh points from a parsed table (see [`read_mesh_csv`]).

@@ -222,14 +222,7 @@ pub fn read_morph_file(path: impl AsRef<Path>) -> Result<(MorphMesh, Option<Morp
     let base = path
         .parent()
         .map(|p| if p.as_os_str().is_empty() { Path::new(".") } else { p });
-    read_morph_file_from_slice(&bytes, base).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    read_morph_file_from_slice(&bytes, base).map_err(|e| e.at_path(path))
 }
 
 /// Reads a mesh with morph targets from GLB or glTF-JSON bytes. External buffer

@@ -58,14 +58,7 @@ pub fn read_obj_with_sources(path: impl AsRef<Path>) -> Result<(Mesh, Vec<u32>)>
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let text = String::from_utf8_lossy(&bytes);
-    parse_obj(&text).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    parse_obj(&text).map_err(|e| e.at_path(path))
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]

@@ -143,14 +143,7 @@ pub fn read_dlib_xml(path: impl AsRef<Path>) -> Result<DlibDataset> {
         Ok(t) => t.to_owned(),
         Err(_) => bytes.iter().map(|&b| char::from(b)).collect(), // ISO-8859-1
     };
-    parse_dlib_xml(&text).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    parse_dlib_xml(&text).map_err(|e| e.at_path(path))
 }
 
 fn attr_map(text: &str, pos: usize, e: &BytesStart) -> Result<Vec<(String, String)>> {

@@ -114,14 +114,7 @@ impl Ljson {
 pub fn read_ljson(path: impl AsRef<Path>) -> Result<Ljson> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_ljson(&bytes).map_err(|e| match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    })
+    parse_ljson(&bytes).map_err(|e| e.at_path(path))
 }
 
 fn perr(r: impl Into<String>) -> Error {

@@ -33,17 +33,6 @@ fn perr(line: usize, reason: impl std::fmt::Display) -> Error {
     Error::parse(FORMAT, "", format!("line {line}: {reason}"))
 }
 
-fn with_path(path: &Path, e: Error) -> Error {
-    match e {
-        Error::Parse { format, reason, .. } => Error::Parse {
-            format,
-            path: path.to_path_buf(),
-            reason,
-        },
-        other => other,
-    }
-}
-
 /// Parses `.pts` text into 0-based points (any number of points).
 ///
 /// # Errors
@@ -134,7 +123,7 @@ pub fn read_pts_points(path: impl AsRef<Path>) -> Result<Vec<Point2<f64>>> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let text = std::str::from_utf8(&bytes).map_err(|e| Error::parse(FORMAT, path, format!("not UTF-8: {e}")))?;
-    parse_pts(text).map_err(|e| with_path(path, e))
+    parse_pts(text).map_err(|e| e.at_path(path))
 }
 
 /// Reads a 68-point `.pts` file.
