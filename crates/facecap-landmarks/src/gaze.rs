@@ -391,45 +391,9 @@ impl IrisEstimator {
         };
         let pts: [Point2<f64>; 6] = idx.map(|i| lm.points[i]);
         let mut est = EyeEstimate::default();
-        if pts.iter().any(|q| !q.x.is_finite() || !q.y.is_finite()) {
-            est.status = EyeStatus::NotFinite;
+        let Some(EyeFrame { o, a, n, l, poly }) = eye_frame(&pts, eye, p, &mut est) else {
             return (est, 0);
-        }
-        let (o, i) = (pts[0], pts[3]);
-        let axis = i - o;
-        let l = axis.norm();
-        est.width_px = l;
-        if l.is_nan() || l < p.min_eye_width_px {
-            est.status = EyeStatus::TooSmall;
-            return (est, 0);
-        }
-        let a = axis / l;
-        let n = match eye {
-            Eye::Right => Vector2::new(-a.y, a.x),
-            Eye::Left => Vector2::new(a.y, -a.x),
         };
-        // upper lid 1, 2 against lower lid 5, 4 (walk order: 1 faces 5, 2 faces 4)
-        est.opening = ((pts[1] - pts[5]).norm() + (pts[2] - pts[4]).norm()) / (2.0 * l);
-        if est.opening < p.min_opening {
-            est.status = EyeStatus::Closed;
-            return (est, 0);
-        }
-        // polygon in (u, v), dilated about its centroid
-        let mut poly = [[0.0f64; 2]; 6];
-        for (k, q) in pts.iter().enumerate() {
-            let d = q - o;
-            poly[k] = [d.dot(&a) / l, d.dot(&n) / l];
-        }
-        let cu = poly.iter().map(|q| q[0]).sum::<f64>() / 6.0;
-        let cv = poly.iter().map(|q| q[1]).sum::<f64>() / 6.0;
-        for q in &mut poly {
-            let (du, dv) = (q[0] - cu, q[1] - cv);
-            let r = (du * du + dv * dv).sqrt();
-            if r > 0.0 {
-                q[0] += du / r * p.mask_margin;
-                q[1] += dv / r * p.mask_margin;
-            }
-        }
         // sample the patch, only where the mask is (row by row, between the polygon's
         // outermost crossings of the row)
         let (w, h) = (self.width, self.height);
@@ -637,45 +601,15 @@ fn point_in_polygon(poly: &[[f64; 2]; 6], x: f64, y: f64) -> bool {
 /// Never panics; non-finite input gives an invalid eye.
 pub fn eye_from_centre(contour: &[Point2<f64>; 6], centre: Point2<f64>, eye: Eye, params: &IrisParams) -> EyeEstimate {
     let mut est = EyeEstimate::default();
-    let finite = |q: &Point2<f64>| q.x.is_finite() && q.y.is_finite();
-    if !contour.iter().all(finite) || !finite(&centre) {
+    if !centre.x.is_finite() || !centre.y.is_finite() {
         est.status = EyeStatus::NotFinite;
         return est;
     }
-    let (o, i) = (contour[0], contour[3]);
-    let l = (i - o).norm();
-    est.width_px = l;
-    if l.is_nan() || l < params.min_eye_width_px {
-        est.status = EyeStatus::TooSmall;
+    let Some(frame) = eye_frame(contour, eye, params, &mut est) else {
         return est;
-    }
-    let a = (i - o) / l;
-    let n = match eye {
-        Eye::Right => Vector2::new(-a.y, a.x),
-        Eye::Left => Vector2::new(a.y, -a.x),
     };
-    est.opening = ((contour[1] - contour[5]).norm() + (contour[2] - contour[4]).norm()) / (2.0 * l);
-    if est.opening < params.min_opening {
-        est.status = EyeStatus::Closed;
-        return est;
-    }
-    let uv = |q: Point2<f64>| {
-        let d = q - o;
-        [d.dot(&a) / l, d.dot(&n) / l]
-    };
-    let mut poly = contour.map(uv);
-    let cu = poly.iter().map(|q| q[0]).sum::<f64>() / 6.0;
-    let cv = poly.iter().map(|q| q[1]).sum::<f64>() / 6.0;
-    for q in &mut poly {
-        let (du, dv) = (q[0] - cu, q[1] - cv);
-        let r = (du * du + dv * dv).sqrt();
-        if r > 0.0 {
-            q[0] += du / r * params.mask_margin;
-            q[1] += dv / r * params.mask_margin;
-        }
-    }
-    let [u, v] = uv(centre);
-    if !point_in_polygon(&poly, u, v) {
+    let [u, v] = frame.uv(centre);
+    if !point_in_polygon(&frame.poly, u, v) {
         est.status = EyeStatus::Implausible;
         return est;
     }
@@ -685,6 +619,76 @@ pub fn eye_from_centre(contour: &[Point2<f64>; 6], centre: Point2<f64>, eye: Eye
     est.confidence = (est.opening / (2.0 * params.min_opening.max(1e-9))).min(1.0);
     est.status = EyeStatus::Valid;
     est
+}
+
+/// An eye's own frame, from its six outline points (iBUG walk order): origin `o` at the
+/// outer corner, unit axis `a` to the inner corner, unit normal `n` towards the upper lid,
+/// the width `l` in pixels, and the outline in (u, v) = eye widths along (a, n), dilated
+/// about its centroid by `mask_margin`.
+struct EyeFrame {
+    o: Point2<f64>,
+    a: Vector2<f64>,
+    n: Vector2<f64>,
+    l: f64,
+    poly: [[f64; 2]; 6],
+}
+
+impl EyeFrame {
+    /// A point in the eye's (u, v).
+    fn uv(&self, q: Point2<f64>) -> [f64; 2] {
+        let d = q - self.o;
+        [d.dot(&self.a) / self.l, d.dot(&self.n) / self.l]
+    }
+}
+
+/// The validity rules both eye estimators share (`NotFinite`, `TooSmall`, `Closed`) and
+/// the eye's frame; sets `est.width_px`, `est.opening` and, for an invalid eye,
+/// `est.status` (then `None`).
+fn eye_frame(pts: &[Point2<f64>; 6], eye: Eye, p: &IrisParams, est: &mut EyeEstimate) -> Option<EyeFrame> {
+    if pts.iter().any(|q| !q.x.is_finite() || !q.y.is_finite()) {
+        est.status = EyeStatus::NotFinite;
+        return None;
+    }
+    let (o, i) = (pts[0], pts[3]);
+    let axis = i - o;
+    let l = axis.norm();
+    est.width_px = l;
+    if l.is_nan() || l < p.min_eye_width_px {
+        est.status = EyeStatus::TooSmall;
+        return None;
+    }
+    let a = axis / l;
+    let n = match eye {
+        Eye::Right => Vector2::new(-a.y, a.x),
+        Eye::Left => Vector2::new(a.y, -a.x),
+    };
+    // upper lid 1, 2 against lower lid 5, 4 (walk order: 1 faces 5, 2 faces 4)
+    est.opening = ((pts[1] - pts[5]).norm() + (pts[2] - pts[4]).norm()) / (2.0 * l);
+    if est.opening < p.min_opening {
+        est.status = EyeStatus::Closed;
+        return None;
+    }
+    let mut frame = EyeFrame {
+        o,
+        a,
+        n,
+        l,
+        poly: [[0.0; 2]; 6],
+    };
+    // the outline in (u, v), dilated about its centroid
+    let mut poly = pts.map(|q| frame.uv(q));
+    let cu = poly.iter().map(|q| q[0]).sum::<f64>() / 6.0;
+    let cv = poly.iter().map(|q| q[1]).sum::<f64>() / 6.0;
+    for q in &mut poly {
+        let (du, dv) = (q[0] - cu, q[1] - cv);
+        let r = (du * du + dv * dv).sqrt();
+        if r > 0.0 {
+            q[0] += du / r * p.mask_margin;
+            q[1] += dv / r * p.mask_margin;
+        }
+    }
+    frame.poly = poly;
+    Some(frame)
 }
 
 /// ARKit names of the weights [`gaze_weights`] returns, in its order.
