@@ -578,19 +578,10 @@ impl Interpreter {
     /// # Errors
     /// As for [`Interpreter::run`].
     pub fn profile(&self, ws: &mut Workspace) -> Result<Vec<(&'static str, f64)>> {
-        self.check_ws(ws)?;
+        let times = self.profile_steps(ws)?;
         let mut acc: Vec<(&'static str, f64)> = Vec::new();
-        for step in &self.steps {
+        for (step, dt) in self.steps.iter().zip(times) {
             let name = step_name(step);
-            let t0 = std::time::Instant::now();
-            let level = kernels::Level::detect();
-            let one = One { step, ws, level };
-            match level {
-                #[cfg(target_arch = "x86_64")]
-                kernels::Level::V3(simd) => pulp::Simd::vectorize(simd, one),
-                kernels::Level::Portable => pulp::Arch::new().dispatch(one),
-            }
-            let dt = t0.elapsed().as_secs_f64();
             match acc.iter_mut().find(|(n, _)| *n == name) {
                 Some(a) => a.1 += dt,
                 None => acc.push((name, dt)),
