@@ -678,6 +678,7 @@ fn capture_one(
             &preview_path,
             &facecap_pipeline::PreviewParams {
                 decode_threads: args.decode_threads,
+                video_fps: Some(info.fps),
                 ..facecap_pipeline::PreviewParams::default()
             },
             &keep,

@@ -192,6 +192,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         strict: !args.lenient,
         threads: 0,
         scale: None,
+        ..SourceOptions::default()
     };
     let mut reports = Vec::with_capacity(args.inputs.len());
     for (i, path) in args.inputs.iter().enumerate() {

@@ -24,7 +24,7 @@ use std::time::Instant;
 
 use facecap_core::camera::Intrinsics;
 use facecap_io::video::encode::{EncoderParams, FfmpegEncoder};
-use facecap_io::video::{open_source, Frame, SourceOptions};
+use facecap_io::video::{open_source, Frame, FrameSelect, SourceOptions, MAX_SELECT_EXTRA};
 use image::{Rgb, RgbImage};
 use nalgebra::Point2;
 use rayon::prelude::*;
@@ -48,6 +48,7 @@ pub const LANDMARK_COLOUR: [u8; 3] = [60, 230, 90];
 /// | `max_fps` | 15 | frame-rate cap: a faster video shows every k-th frame, k = ceil(fps / max_fps), at fps / k | 1..=240 |
 /// | `decode_threads` | 1 | ffmpeg decoder threads for the second pass | any (0 = ffmpeg's choice) |
 /// | `encoder` | [`EncoderParams::default`] with preset `ultrafast` (`fps` is set from the video) | x264 settings | |
+/// | `video_fps` | `None` | the video's frame rate if known: the decoder then skips the frames not shown (see [`SourceOptions::select`]) | finite, > 0 |
 #[derive(Debug, Clone, PartialEq)]
 pub struct PreviewParams {
     /// Largest frame height in the preview.
@@ -58,6 +59,9 @@ pub struct PreviewParams {
     pub decode_threads: u32,
     /// Encoder settings (its `fps` is replaced by the video's when that is known).
     pub encoder: EncoderParams,
+    /// The video's frame rate when the caller knows it (the tracking pass's): ffmpeg then
+    /// drops the frames the preview does not show, and no second ffprobe runs.
+    pub video_fps: Option<f64>,
 }
 
 impl Default for PreviewParams {
@@ -72,6 +76,7 @@ impl Default for PreviewParams {
                 preset: "ultrafast".into(),
                 ..EncoderParams::default()
             },
+            video_fps: None,
         }
     }
 }
@@ -371,12 +376,27 @@ pub fn write_preview(
         return Err(Error::invalid("preview video size", format!("{size:?}"), "non-zero"));
     }
     let layout = PreviewLayout::new(size.0, size.1, params.max_height);
+    // every `stride`-th frame, at the rate that keeps the clip's duration
+    let stride_of = |fps: f64| ((fps / params.max_fps).ceil() as usize).clamp(1, 240);
+    // With the rate known beforehand, ffmpeg drops the frames the preview does not show
+    // (neither on the stride nor kept) before scaling, converting and piping them.
+    let known_fps = params.video_fps.filter(|f| f.is_finite() && *f > 0.0);
+    let select = known_fps
+        .filter(|_| keep.len() <= MAX_SELECT_EXTRA)
+        .map(|fps| FrameSelect {
+            stride: stride_of(fps) as u64,
+            extra: keep.to_vec(),
+        })
+        .filter(|s| s.stride > 1 || !s.extra.is_empty());
     let mut source = open_source(
         video,
         &SourceOptions {
             rgb: true,
             threads: params.decode_threads,
             scale: (layout.frame != size).then_some(layout.frame),
+            select,
+            // the tracking pass probed the video already
+            probe_frame_count: known_fps.is_none(),
             ..SourceOptions::default()
         },
     )?;
@@ -388,13 +408,12 @@ pub fn write_preview(
             format!("{}x{} (the solve's) or {:?}", size.0, size.1, layout.frame),
         ));
     }
-    let video_fps = if info.fps.is_finite() && info.fps > 0.0 {
+    let video_fps = known_fps.unwrap_or(if info.fps.is_finite() && info.fps > 0.0 {
         info.fps
     } else {
         params.encoder.fps
-    };
-    // every `stride`-th frame, at the rate that keeps the clip's duration
-    let stride = ((video_fps / params.max_fps).ceil() as usize).clamp(1, 240);
+    });
+    let stride = stride_of(video_fps);
     let fps = video_fps / stride as f64;
     let mut encoder = FfmpegEncoder::create(
         out,
@@ -439,18 +458,24 @@ pub fn write_preview(
             let r = (|| -> Result<()> {
                 let (mut pos, mut next_index, mut consecutive) = (0usize, 0u64, 0u32);
                 let mut fr = Frame::default();
-                loop {
+                let dark = || RgbImage::from_pixel(layout.frame.0, layout.frame.1, Rgb([40, 40, 40]));
+                let wanted = |pos: usize| frames[pos].index % stride as u64 == 0;
+                let mut ended = false;
+                while !ended {
                     if stop() {
                         return Err(Error::Interrupted { frame: pos as u64 });
                     }
                     let t = Instant::now();
-                    let mut decoded = Batch::with_capacity(batch);
+                    let mut decoded = Batch::with_capacity(batch + 1);
                     while decoded.len() < batch {
                         if fr.rgb.is_none() {
                             fr.rgb = frame_pool_rx.try_recv().ok();
                         }
                         let rgb = match source.read_into(&mut fr) {
-                            Ok(false) => break,
+                            Ok(false) => {
+                                ended = true;
+                                break;
+                            }
                             Ok(true) => {
                                 next_index = fr.index + 1;
                                 consecutive = 0;
@@ -466,23 +491,31 @@ pub fn write_preview(
                                 next_index = index + 1;
                                 consecutive += 1;
                                 if consecutive > crate::tracker::MAX_CONSECUTIVE_DECODE_ERRORS {
+                                    ended = true;
                                     break;
                                 }
                                 fr.index = index;
-                                Some(RgbImage::from_pixel(layout.frame.0, layout.frame.1, Rgb([40, 40, 40])))
+                                Some(dark())
                             }
                         };
-                        let solved = frames.get(pos);
-                        if solved.map(|s| s.index) != Some(fr.index) {
+                        // Solved frames the source passed over: dropped by the selection
+                        // (not shown), or shown dark if the preview wanted them.
+                        while pos < frames.len() && frames[pos].index < fr.index {
+                            if wanted(pos) {
+                                decoded.push((pos, dark()));
+                            }
+                            pos += 1;
+                        }
+                        if frames.get(pos).map(|s| s.index) != Some(fr.index) {
                             return Err(Error::invalid(
                                 "preview frames",
                                 format!("video frame {} has no solved frame", fr.index),
                                 format!("the {} frames of the solve, in order", frames.len()),
                             ));
                         }
-                        let wanted = pos % stride == 0;
+                        let wanted_here = wanted(pos);
                         let kept_here = keep.contains(&fr.index);
-                        if wanted || kept_here {
+                        if wanted_here || kept_here {
                             let img = match rgb {
                                 Some(img) => img,
                                 None => {
@@ -499,7 +532,7 @@ pub fn write_preview(
                             if kept_here {
                                 kept.push((fr.index, img.clone()));
                             }
-                            if wanted {
+                            if wanted_here {
                                 decoded.push((pos, img));
                             } else {
                                 fr.rgb = Some(img);
@@ -507,20 +540,23 @@ pub fn write_preview(
                         }
                         pos += 1;
                     }
+                    if ended {
+                        // Solved frames after the last one decoded: dropped by the
+                        // selection, or (a video that ended early) shown dark.
+                        while pos < frames.len() {
+                            if wanted(pos) {
+                                decoded.push((pos, dark()));
+                            }
+                            pos += 1;
+                        }
+                    }
                     busy += t.elapsed().as_secs_f64();
                     if decoded.is_empty() {
-                        break;
+                        continue;
                     }
                     if batch_tx.send(Ok(decoded)).is_err() {
                         return Ok(());
                     }
-                }
-                if pos != frames.len() {
-                    return Err(Error::invalid(
-                        "preview frames",
-                        format!("{pos} frames decoded"),
-                        format!("the {} frames of the solve", frames.len()),
-                    ));
                 }
                 Ok(())
             })();

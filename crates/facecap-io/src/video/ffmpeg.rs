@@ -4,7 +4,8 @@
 //!
 //! ```text
 //! ffmpeg -nostdin -hide_banner -nostats -loglevel level+info [-xerror] [-threads N]
-//!        -copyts -i FILE -map 0:V:0 -vf [scale=W:H:flags=bilinear,]showinfo=checksum=0 -fps_mode passthrough
+//!        -copyts -i FILE -map 0:V:0 -vf showinfo=checksum=0[,select=EXPR][,scale=W:H:flags=bilinear]
+//!        -fps_mode passthrough
 //!        -f rawvideo -pix_fmt yuv420p|yuv444p pipe:1          (stdin = /dev/null)
 //! ```
 //!
@@ -17,9 +18,14 @@
 //!   exact presentation timestamp `pts * time_base` (`-copyts`: no shift to zero, i.e.
 //!   what `ffprobe -show_entries frame=pts_time` reports) and a size change is detected.
 //! * `-fps_mode passthrough`: no frame is duplicated or dropped to fit a constant rate.
+//! * `select=...` only with [`SourceOptions::select`]: the frames not selected are
+//!   dropped after `showinfo` reported them (so every decoded frame still has its index
+//!   and timestamp, and the source knows which reports have no bytes in the pipe) and
+//!   before they are scaled, converted or piped. ffmpeg still decodes every frame (H.264
+//!   frames depend on each other).
 //! * `scale=...` only with [`SourceOptions::scale`]: ffmpeg's SIMD scaler shrinks the
-//!   frames before they are piped and converted (the sizes `showinfo` reports are then
-//!   the scaled ones).
+//!   frames before they are piped and converted (`showinfo` comes first and reports the
+//!   decoded size; a change of it is an error as without scaling).
 //! * `-map 0:V:0`: the first video stream that is not an attached picture (cover art).
 //! * Strict mode ([`SourceOptions::strict`], the default): `-xerror` makes ffmpeg 5 stop at
 //!   the first decode error, and since ffmpeg 7 merely drops a damaged frame even then,
@@ -427,6 +433,10 @@ pub struct FfmpegSource {
     /// the error line.
     damaged: Option<String>,
     done: bool,
+    /// Size of the decoded frames as `showinfo` reports them (before any scaling).
+    decoded_size: (u32, u32),
+    /// The frames ffmpeg passes on ([`SourceOptions::select`]).
+    select: Option<super::FrameSelect>,
 }
 
 /// Largest run of dropped frames reported one by one (a timestamp jump beyond it is a
@@ -444,10 +454,15 @@ impl FfmpegSource {
         std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
         let ffmpeg = locate_ffmpeg(opts.ffmpeg.as_deref())?;
         let pix_fmt = if opts.rgb { "yuv444p" } else { "yuv420p" };
-        let filters = match opts.scale {
-            Some((w, h)) => format!("scale={w}:{h}:flags=bilinear,showinfo=checksum=0"),
-            None => "showinfo=checksum=0".to_string(),
-        };
+        // showinfo first: it reports every decoded frame (so indices stay exact when
+        // `select` drops some), then the selection, then the scaling of what is left
+        let mut filters = "showinfo=checksum=0".to_string();
+        if let Some(sel) = &opts.select {
+            filters.push_str(&format!(",select={}", sel.ffmpeg_expr()));
+        }
+        if let Some((w, h)) = opts.scale {
+            filters.push_str(&format!(",scale={w}:{h}:flags=bilinear"));
+        }
         let mut cmd = Command::new(&ffmpeg);
         cmd.args(["-nostdin", "-hide_banner", "-nostats", "-loglevel", "level+info"]);
         if opts.strict {
@@ -542,9 +557,15 @@ impl FfmpegSource {
             skippable: false,
             damaged: None,
             done: false,
+            decoded_size: (0, 0),
+            select: opts.select.clone(),
         };
         // The frame count comes from ffprobe, started now so it runs while ffmpeg starts.
-        let mut probe = ProbeGuard(locate_ffprobe(&ffmpeg).and_then(|p| spawn_frame_count_probe(&p, path)));
+        let mut probe = ProbeGuard(if opts.probe_frame_count {
+            locate_ffprobe(&ffmpeg).and_then(|p| spawn_frame_count_probe(&p, path))
+        } else {
+            None
+        });
         // Header lines come before the first frame line.
         let mut header = StreamHeader::default();
         let mut rate = None;
@@ -581,9 +602,11 @@ impl FfmpegSource {
             .map(|(n, d)| n as f64 / d as f64)
             .or(header.fps)
             .unwrap_or(FALLBACK_FPS);
+        src.decoded_size = (first.width, first.height);
+        let (width, height) = opts.scale.unwrap_or(src.decoded_size);
         src.info = VideoInfo {
-            width: first.width,
-            height: first.height,
+            width,
+            height,
             fps,
             frame_count,
             duration_s: header.duration_s,
@@ -595,8 +618,8 @@ impl FfmpegSource {
         let range = header.range;
         src.lut = (opts.luma == Luma::Full && range == ColorRange::Limited).then(limited_to_full_luma_lut);
         src.conv = YuvToRgb::new(header.matrix, range);
-        let cw = first.width.div_ceil(src.chroma_sub) as usize;
-        let ch = first.height.div_ceil(src.chroma_sub) as usize;
+        let cw = width.div_ceil(src.chroma_sub) as usize;
+        let ch = height.div_ceil(src.chroma_sub) as usize;
         src.chroma = vec![0; 2 * cw * ch];
         src.pending = Some(first);
         Ok(src)
@@ -752,7 +775,18 @@ impl FfmpegSource {
         }
     }
 
+    /// The next delivered frame (frames `select` dropped are passed over).
     fn read_frame(&mut self, frame: &mut Frame) -> Result<bool> {
+        loop {
+            if let Some(r) = self.read_step(frame)? {
+                return Ok(r);
+            }
+        }
+    }
+
+    /// One frame report: `Some` as [`FrameSource::read_into`], `None` for a frame that
+    /// `select` dropped (no bytes follow its report).
+    fn read_step(&mut self, frame: &mut Frame) -> Result<Option<bool>> {
         if self.missing > 0 {
             // Lenient mode: one frame ffmpeg dropped as undecodable, reported on its own.
             self.missing -= 1;
@@ -773,7 +807,7 @@ impl FfmpegSource {
             return Err(e);
         }
         let Some(rep) = next else {
-            return self.finish();
+            return self.finish().map(Some);
         };
         let time = |rep: &ShowinfoFrame, tb: Option<(i64, i64)>| match (rep.pts, tb) {
             (Some(p), Some((num, den))) if den != 0 => Some(p as f64 * num as f64 / den as f64),
@@ -792,7 +826,7 @@ impl FfmpegSource {
                     // the frame itself follows the error: it is checked again below
                     self.error_since_frame = Some(err.clone());
                     self.pending = Some(rep);
-                    return self.read_frame(frame);
+                    return self.read_step(frame);
                 }
             }
             // A frame whose decoding logged an error is concealed (partly invented by
@@ -808,16 +842,25 @@ impl FfmpegSource {
                 format!("ffmpeg reported frame {} where {k} was expected", rep.n),
             ));
         }
-        let (w, h) = (self.info.width, self.info.height);
-        if (rep.width, rep.height) != (w, h) {
+        let (dw, dh) = self.decoded_size;
+        if (rep.width, rep.height) != (dw, dh) {
             return Err(self.decode_err(
                 Some(k),
                 format!(
-                    "frame size changes from {w}x{h} to {}x{} (not supported; re-encode with a fixed size)",
+                    "frame size changes from {dw}x{dh} to {}x{} (not supported; re-encode with a fixed size)",
                     rep.width, rep.height
                 ),
             ));
         }
+        if self.select.as_ref().is_some_and(|s| !s.contains(rep.n)) {
+            // dropped by ffmpeg's `select` after its report: no bytes follow
+            self.last_time = time(&rep, self.time_base).or(self.last_time);
+            self.error_since_frame = None;
+            self.damaged = None;
+            self.next_index += 1;
+            return Ok(None);
+        }
+        let (w, h) = (self.info.width, self.info.height);
         ensure_gray(&mut frame.gray, w, h);
         let read = self
             .stdout
@@ -860,7 +903,7 @@ impl FfmpegSource {
                 format!("damaged: ffmpeg concealed a decode error in this frame ({e})"),
             ));
         }
-        Ok(true)
+        Ok(Some(true))
     }
 }
 

@@ -139,6 +139,8 @@ pub enum Luma {
 /// | `strict` | `true` | stop with an error at the first decode error instead of letting ffmpeg conceal it (never hands out a damaged frame) | |
 /// | `threads` | 0 | ffmpeg decoder threads (0 = ffmpeg's choice) | 0..=64 |
 /// | `scale` | `None` | video files only: ffmpeg scales every frame to this width x height (bilinear) before it reaches the pipe, so a caller that wants small frames neither moves nor converts full ones; Y4M files and images keep their size | 1..=8192 each |
+/// | `select` | `None` | video files only: deliver only the frames a [`FrameSelect`] names (ffmpeg drops the others before scaling, converting and piping them); delivered frames keep their indices and timestamps, so indices jump over the dropped ones; Y4M files and images deliver every frame | see [`FrameSelect`] |
+/// | `probe_frame_count` | `true` | video files only: run `ffprobe` for [`VideoInfo::frame_count`] (a caller that knows it already can save the process) | |
 #[derive(Debug, Clone, PartialEq)]
 pub struct SourceOptions {
     /// Also produce RGB frames.
@@ -155,6 +157,72 @@ pub struct SourceOptions {
     pub threads: u32,
     /// Frame size ffmpeg scales video files to (see the table).
     pub scale: Option<(u32, u32)>,
+    /// Frames of video files to deliver (see the table).
+    pub select: Option<FrameSelect>,
+    /// Ask ffprobe for the frame count of video files.
+    pub probe_frame_count: bool,
+}
+
+/// Which frames of a video file [`SourceOptions::select`] delivers: frame `k` (0-based,
+/// in decoding order, as [`Frame::index`]) when `k % stride == 0` or `k` is in `extra`.
+///
+/// | field | meaning | range |
+/// |---|---|---|
+/// | `stride` | every `stride`-th frame, from frame 0 | 1..=[`MAX_SELECT_STRIDE`] |
+/// | `extra` | further frames | at most [`MAX_SELECT_EXTRA`] |
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameSelect {
+    /// Every `stride`-th frame.
+    pub stride: u64,
+    /// Further frame indices.
+    pub extra: Vec<u64>,
+}
+
+/// Largest [`FrameSelect::stride`].
+pub const MAX_SELECT_STRIDE: u64 = 1000;
+/// Most [`FrameSelect::extra`] indices.
+pub const MAX_SELECT_EXTRA: usize = 256;
+
+impl FrameSelect {
+    /// Whether frame `k` is delivered.
+    pub fn contains(&self, k: u64) -> bool {
+        (self.stride > 0 && k % self.stride == 0) || self.extra.contains(&k)
+    }
+
+    /// Checks the fields (see the table).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] naming the field.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=MAX_SELECT_STRIDE).contains(&self.stride) {
+            return Err(Error::invalid(
+                "select stride",
+                self.stride,
+                format!("1..={MAX_SELECT_STRIDE}"),
+            ));
+        }
+        if self.extra.len() > MAX_SELECT_EXTRA {
+            return Err(Error::invalid(
+                "select extra",
+                format!("{} frames", self.extra.len()),
+                format!("at most {MAX_SELECT_EXTRA}"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The expression of ffmpeg's `select` filter for these frames (commas escaped for a
+    /// filter graph), on the frame number `n` the filter counts.
+    pub fn ffmpeg_expr(&self) -> String {
+        let mut e = format!("not(mod(n\\,{}))", self.stride);
+        let mut extra = self.extra.clone();
+        extra.sort_unstable();
+        extra.dedup();
+        for k in extra.iter().filter(|&&k| k % self.stride != 0) {
+            e.push_str(&format!("+eq(n\\,{k})"));
+        }
+        e
+    }
 }
 
 impl Default for SourceOptions {
@@ -167,6 +235,8 @@ impl Default for SourceOptions {
             strict: true,
             threads: 0,
             scale: None,
+            select: None,
+            probe_frame_count: true,
         }
     }
 }
@@ -187,6 +257,9 @@ impl SourceOptions {
             if !((1..=8192).contains(&w) && (1..=8192).contains(&h)) {
                 return Err(Error::invalid("scale", format!("{w}x{h}"), "1..=8192 pixels each"));
             }
+        }
+        if let Some(s) = &self.select {
+            s.validate()?;
         }
         Ok(())
     }
