@@ -409,17 +409,20 @@ impl RigRenderer {
             ws.setup[k] = su;
             let (z0, z1, z2) = (p0[2] - p2[2], p1[2] - p2[2], p2[2]);
             let a2 = -(su.a0 + su.a1);
+            // reciprocals once per triangle (the span bounds below have a pixel of slack,
+            // the exact test per pixel decides)
+            let coef = [su.a0, su.a1, a2].map(|aa| (aa, if aa != 0.0 { 1.0 / aa } else { 0.0 }));
             for y in miny..=maxy {
                 let dy = y as f32 - su.oy;
                 let (c0, c1) = (1.0 + su.b0 * dy, su.b1 * dy);
                 let c2 = 1.0 - c0 - c1;
                 // the dx where each coordinate reaches EPS bounds the span
                 let (mut lo, mut hi) = (minx as f32 - su.ox, maxx as f32 - su.ox);
-                for (cc, aa) in [(c0, su.a0), (c1, su.a1), (c2, a2)] {
+                for (cc, (aa, inv_aa)) in [c0, c1, c2].into_iter().zip(coef) {
                     if aa > 0.0 {
-                        lo = lo.max((EPS - cc) / aa);
+                        lo = lo.max((EPS - cc) * inv_aa);
                     } else if aa < 0.0 {
-                        hi = hi.min((EPS - cc) / aa);
+                        hi = hi.min((EPS - cc) * inv_aa);
                     } else if cc < EPS {
                         hi = lo - 1.0;
                     }

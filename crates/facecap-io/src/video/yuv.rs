@@ -132,6 +132,13 @@ impl YuvToRgb {
         let (sx, sy) = (sx as usize, sy as usize);
         debug_assert_eq!(y.len(), w * height as usize);
         let out = out.as_mut();
+        if (sx, sy) == (1, 1) && cb.len() >= y.len() && cr.len() >= y.len() {
+            // 4:4:4: one chroma sample per pixel, no index arithmetic
+            for (((o, yv), u), v) in out.chunks_exact_mut(3).zip(y).zip(cb).zip(cr) {
+                o.copy_from_slice(&self.pixel(*yv, *u, *v));
+            }
+            return;
+        }
         for (row, (yrow, orow)) in y.chunks_exact(w).zip(out.chunks_exact_mut(3 * w)).enumerate() {
             let crow = (row / sy) * cw;
             for (col, (yv, o)) in yrow.iter().zip(orow.chunks_exact_mut(3)).enumerate() {
