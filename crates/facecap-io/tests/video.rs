@@ -9,7 +9,7 @@ use std::time::Duration;
 use facecap_core::Error;
 use facecap_io::video::ffmpeg::{locate_ffmpeg, locate_ffprobe, FfmpegSource};
 use facecap_io::video::y4m::write_gray_y4m;
-use facecap_io::video::{open_source, Frame, FrameSource, Luma, SourceKind, SourceOptions};
+use facecap_io::video::{open_source, Frame, FrameSelect, FrameSource, Luma, SourceKind, SourceOptions};
 use image::{GrayImage, Luma as Px, Rgb, RgbImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -215,6 +215,76 @@ fn luma_modes_and_rgb_on_shared_clip() {
         .sum::<f64>()
         / rgb_ref.len() as f64;
     assert!(diff < 2.0, "mean |RGB - ffmpeg rgb24| = {diff}");
+}
+
+/// Decodes a whole source in colour (index, timestamp, RGB bytes).
+fn decode_rgb(path: &Path, opts: &SourceOptions) -> Vec<(u64, f64, Vec<u8>)> {
+    let mut src = open_source(path, opts).unwrap();
+    let mut f = Frame::default();
+    let mut out = Vec::new();
+    while src.read_into(&mut f).unwrap() {
+        out.push((f.index, f.timestamp_s, f.rgb.as_ref().unwrap().as_raw().clone()));
+    }
+    out
+}
+
+#[test]
+fn selected_frames_keep_their_indices_timestamps_and_pixels() {
+    let test = "selected_frames_keep_their_indices_timestamps_and_pixels";
+    let Some(path) = facecap_core::paths::shared_data_file(test, "videos/liveportrait_d18.mp4") else {
+        return;
+    };
+    if ffmpeg_or_skip(test).is_none() {
+        return;
+    }
+    let base = SourceOptions {
+        rgb: true,
+        scale: Some((360, 360)),
+        ..Default::default()
+    };
+    let all = decode_rgb(&path, &base);
+    assert_eq!(all.len(), 216);
+    let select = FrameSelect {
+        stride: 3,
+        extra: vec![7, 200, 3, 215],
+    };
+    let sel = decode_rgb(
+        &path,
+        &SourceOptions {
+            select: Some(select.clone()),
+            probe_frame_count: false,
+            ..base.clone()
+        },
+    );
+    let want: Vec<&(u64, f64, Vec<u8>)> = all.iter().filter(|f| select.contains(f.0)).collect();
+    assert_eq!(want.len(), 72 + 3);
+    assert_eq!(sel.len(), want.len());
+    for (s, w) in sel.iter().zip(want) {
+        assert_eq!((s.0, s.1), (w.0, w.1), "index and timestamp");
+        assert!(s.2 == w.2, "frame {}: the pixels differ from the full decode", s.0);
+    }
+    // the frame count comes from the probe only when asked for
+    let src = open_source(
+        &path,
+        &SourceOptions {
+            probe_frame_count: false,
+            ..base.clone()
+        },
+    )
+    .unwrap();
+    assert_eq!(src.info().frame_count, None);
+    let src = open_source(&path, &base).unwrap();
+    assert_eq!(src.info().frame_count, Some(216));
+    assert_eq!((src.info().width, src.info().height), (360, 360));
+    // a stride of 0 is refused
+    let bad = SourceOptions {
+        select: Some(FrameSelect {
+            stride: 0,
+            extra: vec![],
+        }),
+        ..Default::default()
+    };
+    assert!(matches!(open_source(&path, &bad), Err(Error::InvalidParameter { .. })));
 }
 
 #[test]
