@@ -241,29 +241,6 @@ impl Default for SourceOptions {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn frame_select_expression_and_membership() {
-        let s = FrameSelect {
-            stride: 2,
-            extra: vec![9, 4, 9, 3],
-        };
-        assert_eq!(s.ffmpeg_expr(), "not(mod(n\\,2))+eq(n\\,3)+eq(n\\,9)");
-        let got: Vec<u64> = (0..10).filter(|&k| s.contains(k)).collect();
-        assert_eq!(got, vec![0, 2, 3, 4, 6, 8, 9]);
-        assert!(s.validate().is_ok());
-        assert!(FrameSelect {
-            stride: 0,
-            extra: vec![]
-        }
-        .validate()
-        .is_err());
-    }
-}
-
 /// Largest accepted `threads`.
 pub const MAX_THREADS: u32 = 64;
 
@@ -360,5 +337,28 @@ pub(crate) fn ensure_rgb(rgb: &mut Option<RgbImage>, want: bool, width: u32, hei
     match rgb {
         Some(img) if img.dimensions() == (width, height) => {}
         _ => *rgb = Some(RgbImage::new(width, height)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_select_expression_and_membership() {
+        let s = FrameSelect {
+            stride: 2,
+            extra: vec![9, 4, 9, 3],
+        };
+        assert_eq!(s.ffmpeg_expr(), "not(mod(n\\,2))+eq(n\\,3)+eq(n\\,9)");
+        let got: Vec<u64> = (0..10).filter(|&k| s.contains(k)).collect();
+        assert_eq!(got, vec![0, 2, 3, 4, 6, 8, 9]);
+        assert!(s.validate().is_ok());
+        assert!(FrameSelect {
+            stride: 0,
+            extra: vec![]
+        }
+        .validate()
+        .is_err());
     }
 }
