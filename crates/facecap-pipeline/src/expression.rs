@@ -20,7 +20,8 @@ use facecap_geom::pnp::{solve_pnp, PnpParams};
 use facecap_io::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
 use facecap_solve::{
-    AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
+    AnySolver, BlendshapeRig, DensePoints, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution,
+    SolveState,
 };
 use image::GrayImage;
 use nalgebra::{Point2, Point3};
@@ -39,6 +40,10 @@ pub struct ExpressionSetup {
     pub objective: ObjectiveParams,
     /// Per-shape priors of the 3D solver (`None`: none).
     pub priors: Option<ShapePriors>,
+    /// Dense points of the 3D solver, observed as the face mesh's points of each frame
+    /// ([`TrackedFace::mesh`]; `None`: the 68 landmarks only). Their neutral follows the
+    /// rig's neutral calibration ([`facecap_solve::dense::calibrate_points`]).
+    pub dense: Option<DensePoints>,
 }
 
 /// A calibrated rig and what was done (for `summary.json`).
@@ -86,7 +91,16 @@ pub fn build_expression_solve(
             None => s,
         })
     };
-    let solver = with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?;
+    let with_dense = |s: AnySolver, rig: &BlendshapeRig| -> Result<AnySolver> {
+        Ok(match &setup.dense {
+            Some(d) => s.with_dense(facecap_solve::dense::calibrate_points(d, &setup.rig, rig))?,
+            None => s,
+        })
+    };
+    let solver = with_dense(
+        with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?,
+        &setup.rig,
+    )?;
     let Some((cal, frames)) = calibration else {
         return Ok((solver, serde_json::Value::Null));
     };
@@ -100,7 +114,10 @@ pub fn build_expression_solve(
     let c = cal
         .calibrate(&solver, &setup.rig, camera, frames)
         .map_err(Error::Calibration)?;
-    let calibrated = with_priors(AnySolver::new(setup.method, &c.rig, camera, setup.objective)?)?;
+    let calibrated = with_dense(
+        with_priors(AnySolver::new(setup.method, &c.rig, camera, setup.objective)?)?,
+        &c.rig,
+    )?;
     Ok((calibrated, c.report))
 }
 
@@ -140,6 +157,8 @@ pub struct ExpressionResult {
     pub neutral_report: serde_json::Value,
     /// Per-frame solver failures (frame, message); those frames are written unsolved.
     pub failures: Vec<(u64, String)>,
+    /// Frames solved with the dense points ([`ExpressionSetup::dense`]) observed.
+    pub dense_frames: u64,
 }
 
 /// Largest plausible mean reprojection error of a solve, as a fraction of the tracked
@@ -369,6 +388,7 @@ impl<'a> ExpressionSink<'a> {
                 faces_found: 0,
                 neutral_report: serde_json::Value::Null,
                 failures: Vec::new(),
+                dense_frames: 0,
             },
             pnp_model: Vec::with_capacity(NUM_LANDMARKS),
             pnp_image: Vec::with_capacity(NUM_LANDMARKS),
@@ -562,12 +582,15 @@ impl<'a> ExpressionSink<'a> {
         if let Some(l) = &face.landmarks {
             self.result.faces_found += 1;
             let solved = solver
-                .solve_into(l, ws, state, &mut *solution)
+                .solve_dense_into(l, face.mesh.as_deref(), ws, state, &mut *solution)
                 .map_err(|e| e.to_string())
                 .and_then(|_| implausible_solve(l, solution.reprojection_error(l), solution.pose.as_ref()));
             match solved {
                 Ok(()) => {
                     out.success = true;
+                    if self.setup.dense.is_some() && face.mesh.is_some() {
+                        self.result.dense_frames += 1;
+                    }
                     out.weights.copy_from_slice(&solution.weights);
                     self.gaze.apply(face.iris.as_ref(), &mut out.weights);
                     for &k in &self.blink_idx {
@@ -682,6 +705,10 @@ impl Sink for ExpressionSink<'_> {
 
     fn wants_iris(&self) -> bool {
         self.gaze.active()
+    }
+
+    fn wants_mesh(&self) -> bool {
+        self.setup.dense.is_some()
     }
 
     fn frame(&mut self, face: &TrackedFace) -> Result<()> {
