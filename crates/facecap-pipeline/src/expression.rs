@@ -685,6 +685,77 @@ impl Solving {
     }
 }
 
+/// Fewest frames [`calibrate_dense`] takes the dense points' neutral from.
+pub const DENSE_NEUTRAL_MIN_FRAMES: usize = 5;
+
+/// The subject's neutral at the dense points of a calibrated 3D solver: each frame of
+/// `faces` with landmarks and a mesh is solved on the landmarks alone (warm-started), and
+/// each dense point's model-space offset onto its observation
+/// ([`facecap_solve::Exact3dSolver::dense_offsets`]) is collected; the per-coordinate
+/// median over the clip is added to the point's neutral. The 68 landmarks get the
+/// subject's neutral from the calibration; this gives it to the dense points, which the
+/// generic map onto the rig cannot (the median keeps what stays put over the clip: the
+/// subject's shape, not the expressions). Returns a JSON report (`null` without dense
+/// points).
+pub fn calibrate_dense(solver: &mut AnySolver, faces: &[TrackedFace]) -> serde_json::Value {
+    let AnySolver::Exact3d(s) = solver else {
+        return serde_json::Value::Null;
+    };
+    let m = s.num_dense();
+    if m == 0 {
+        return serde_json::Value::Null;
+    }
+    let n = s.num_shapes();
+    let mut ws = s.workspace();
+    let mut state = SolveState::new(n);
+    let mut sol = Solution::new(n);
+    let mut per_point: Vec<[Vec<f64>; 3]> = vec![Default::default(); m];
+    let mut used = 0usize;
+    for f in faces {
+        let (Some(l), Some(mesh)) = (&f.landmarks, &f.mesh) else {
+            state.reset();
+            continue;
+        };
+        if s.solve_into(l, &mut ws, &mut state, &mut sol).is_err() {
+            state.reset();
+            continue;
+        }
+        let Some(pose) = sol.pose else { continue };
+        if let Some(off) = s.dense_offsets(mesh, &sol.weights, &pose) {
+            for (acc, o) in per_point.iter_mut().zip(&off) {
+                for c in 0..3 {
+                    acc[c].push(o[c]);
+                }
+            }
+            used += 1;
+        }
+    }
+    if used < DENSE_NEUTRAL_MIN_FRAMES {
+        return serde_json::json!({"mode": "skipped", "frames": used});
+    }
+    let median = |v: &mut Vec<f64>| -> f64 {
+        v.sort_by(f64::total_cmp);
+        let k = v.len() / 2;
+        if v.len() % 2 == 1 {
+            v[k]
+        } else {
+            0.5 * (v[k - 1] + v[k])
+        }
+    };
+    let offsets: Vec<nalgebra::Vector3<f64>> = per_point
+        .iter_mut()
+        .map(|[x, y, z]| nalgebra::Vector3::new(median(x), median(y), median(z)))
+        .collect();
+    s.shift_dense(&offsets);
+    let mean = offsets.iter().map(|o| o.norm()).sum::<f64>() / m as f64;
+    serde_json::json!({
+        "mode": "median offset over the clip after the landmarks' solve",
+        "points": m,
+        "frames": used,
+        "mean_offset_rig_units": mean,
+    })
+}
+
 /// The camera handed to the solver: the real one, or (2D solvers only, which do not
 /// use it) a unit camera.
 fn solver_camera(camera: Option<Intrinsics>) -> Result<Intrinsics> {
@@ -742,7 +813,12 @@ impl Sink for ExpressionSink<'_> {
             .iter()
             .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
             .collect();
-        let (solver, report) = build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
+        let (mut solver, mut report) =
+            build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
+        let dense = calibrate_dense(&mut solver, &self.buffered);
+        if let (serde_json::Value::Object(o), false) = (&mut report, dense.is_null()) {
+            o.insert("dense".into(), dense);
+        }
         self.result.neutral_report = report;
         let irises: Vec<IrisFrame> = self.buffered.iter().filter_map(|t| t.iris).collect();
         self.gaze.rest = GazeRest::median_of(&irises);

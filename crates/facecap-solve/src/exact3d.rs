@@ -458,6 +458,47 @@ impl Exact3dSolver {
         self.idx.len()
     }
 
+    /// For a solved frame (`weights`, `pose`), the model-space offset of each dense point
+    /// that would put its projection on its observation in `dense` at the point's depth
+    /// (the image-plane residual back-projected and rotated into the model frame). `None`
+    /// when the sizes do not fit, an observation is not finite or a point is behind the
+    /// camera.
+    pub fn dense_offsets(&self, dense: &[[f32; 3]], weights: &[f64], pose: &ModelToCamera) -> Option<Vec<Vector3<f64>>> {
+        if weights.len() != self.n || self.dense_sources.iter().any(|&s| s >= dense.len()) {
+            return None;
+        }
+        let m0 = self.idx.len();
+        let mut posed = vec![Vector3::zeros(); self.neutral.len()];
+        self.pose_points(weights, &mut posed);
+        let p = Pose::from_model_to_camera(pose);
+        let k = &self.params.camera;
+        let rt = p.r.inverse();
+        let mut out = Vec::with_capacity(self.dense_sources.len());
+        for (j, &s) in self.dense_sources.iter().enumerate() {
+            let c = p.r * posed[m0 + j] + p.t;
+            let (u, v) = (f64::from(dense[s][0]), f64::from(dense[s][1]));
+            if c.z <= MIN_DEPTH || !u.is_finite() || !v.is_finite() {
+                return None;
+            }
+            let target = Vector3::new((u - k.cx) * c.z / k.fx, (v - k.cy) * c.z / k.fy, c.z);
+            out.push(rt * (target - c));
+        }
+        Some(out)
+    }
+
+    /// Adds `offsets[j]` to dense point `j`'s neutral (e.g. the subject's neutral at the
+    /// dense points, from [`Exact3dSolver::dense_offsets`] over resting frames). Ignored
+    /// when the size is not the number of dense points or an offset is not finite.
+    pub fn shift_dense(&mut self, offsets: &[Vector3<f64>]) {
+        let m0 = self.idx.len();
+        if offsets.len() != self.dense_sources.len() || offsets.iter().any(|o| !o.iter().all(|x| x.is_finite())) {
+            return;
+        }
+        for (p, o) in self.neutral[m0..].iter_mut().zip(offsets) {
+            *p += o;
+        }
+    }
+
     /// The priors in use.
     pub fn priors(&self) -> &ShapePriors {
         &self.priors
