@@ -30,7 +30,10 @@ fn rows(path: &Path, first: usize) -> Vec<(bool, Vec<f64>)> {
             let v: Vec<&str> = l.split(',').collect();
             (
                 v[success].trim() == "1",
-                v[first..].iter().map(|x| x.trim().parse::<f64>().unwrap_or(f64::NAN)).collect(),
+                v[first..]
+                    .iter()
+                    .map(|x| x.trim().parse::<f64>().unwrap_or(f64::NAN))
+                    .collect(),
             )
         })
         .collect()
@@ -39,14 +42,24 @@ fn rows(path: &Path, first: usize) -> Vec<(bool, Vec<f64>)> {
 #[test]
 fn dense_mesh_solve_with_the_ict_rig() {
     let Some(data) = data() else {
-        facecap_core::paths::skip_missing_data("dense_mesh_solve: the clip, the ICT rig or the face mesh models absent");
+        facecap_core::paths::skip_missing_data(
+            "dense_mesh_solve: the clip, the ICT rig or the face mesh models absent",
+        );
         return;
     };
     let ict = data.join("models3d/ict_facekit");
     let dir = tempfile::tempdir().unwrap();
     let run = |points: &str, out: &Path| {
         let st = Command::new(env!("CARGO_BIN_EXE_facecap"))
-            .args(["capture", "--quiet", "--no-preview", "--landmarks", "mesh", "--mesh-points", points])
+            .args([
+                "capture",
+                "--quiet",
+                "--no-preview",
+                "--landmarks",
+                "mesh",
+                "--mesh-points",
+                points,
+            ])
             .arg("--rig")
             .arg(ict.join("ict_face_arkit53.glb"))
             .arg("--landmark-map")
@@ -75,7 +88,10 @@ fn dense_mesh_solve_with_the_ict_rig() {
     let p = rows(&out.join("liveportrait_d18/pose.csv"), 4);
     for (i, ((ok, v), (pok, pv))) in w.iter().zip(&p).enumerate() {
         if *ok {
-            assert!(v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)), "frame {i}: {v:?}");
+            assert!(
+                v.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)),
+                "frame {i}: {v:?}"
+            );
         }
         if *pok {
             assert!(pv.iter().all(|x| x.is_finite()), "frame {i}: pose {pv:?}");

@@ -20,8 +20,7 @@ use facecap_geom::pnp::{solve_pnp, PnpParams};
 use facecap_io::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
 use facecap_solve::{
-    AnySolver, BlendshapeRig, DensePoints, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution,
-    SolveState,
+    AnySolver, BlendshapeRig, DensePoints, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
 };
 use image::GrayImage;
 use nalgebra::{Point2, Point3};

@@ -44,7 +44,11 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
     assert!(m.targets.len() >= 300, "only {} points mapped", m.targets.len());
     let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
     let mut obj = Vec::new();
-    writeln!(obj, "# face-mesh points on the ICT rig's neutral: v x y z, then a comment with the mesh index").unwrap();
+    writeln!(
+        obj,
+        "# face-mesh points on the ICT rig's neutral: v x y z, then a comment with the mesh index"
+    )
+    .unwrap();
     for (t, p) in m.targets.iter().zip(&pos) {
         writeln!(obj, "v {:.5} {:.5} {:.5} # {}", p.x, p.y, p.z, t.source).unwrap();
     }
@@ -77,7 +81,10 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
         let (y, yo, yi) = (at(src).y, rig_lm(outer).y, rig_lm(inner).y);
         let (lo, hi) = (yo.min(yi) - 0.02 * iod, yo.max(yi) + 0.02 * iod);
         eprintln!("mesh {src}: y {y:.3}, iBUG {outer} {yo:.3}, iBUG {inner} {yi:.3}");
-        assert!(y >= lo && y <= hi, "mesh {src} at y {y} not between iBUG {outer} and {inner}");
+        assert!(
+            y >= lo && y <= hi,
+            "mesh {src} at y {y} not between iBUG {outer} and {inner}"
+        );
         let x = (at(src).x - rig_lm(outer).x).abs() / iod;
         assert!(x < 0.05, "mesh {src}: {x:.3} IOD off the lips' middle");
     }

@@ -186,7 +186,10 @@ pub fn map_onto_rig(
         dst.push(Point3::new(f64::from(q.x), f64::from(q.y), f64::from(q.z)));
     }
     if src.len() < 6 {
-        return Err(Error::rig(src_name, format!("{} iBUG pairs; at least 6 needed", src.len())));
+        return Err(Error::rig(
+            src_name,
+            format!("{} iBUG pairs; at least 6 needed", src.len()),
+        ));
     }
     let sim = umeyama3(&src, &dst, None, true).map_err(|e| Error::rig(src_name, e.to_string()))?;
     let iod = match (map.vertices[36], map.vertices[45]) {
@@ -305,7 +308,11 @@ pub fn calibrate_points(points: &DensePoints, generic: &BlendshapeRig, calibrate
         if !(generic.mapped[l] && calibrated.mapped[l]) {
             continue;
         }
-        let g = [generic.neutral[[l, 0]], generic.neutral[[l, 1]], generic.neutral[[l, 2]]];
+        let g = [
+            generic.neutral[[l, 0]],
+            generic.neutral[[l, 1]],
+            generic.neutral[[l, 2]],
+        ];
         let c = [
             calibrated.neutral[[l, 0]],
             calibrated.neutral[[l, 1]],
@@ -396,7 +403,12 @@ mod tests {
         let pos = m.neutral_positions(&mesh);
         for (t, p) in m.targets.iter().zip(&pos) {
             let want = Vector3::from(source[t.source]);
-            assert!((p - want).norm() < 1e-4 * m.iod, "point {} off by {}", t.source, (p - want).norm());
+            assert!(
+                (p - want).norm() < 1e-4 * m.iod,
+                "point {} off by {}",
+                t.source,
+                (p - want).norm()
+            );
         }
     }
 
@@ -419,7 +431,10 @@ mod tests {
         let (a, b, c) = (Vector3::zeros(), Vector3::x(), Vector3::y());
         let w = closest_on_triangle(&Vector3::new(0.25, 0.25, 1.0), &a, &b, &c);
         assert!((w[0] - 0.5).abs() < 1e-12 && (w[1] - 0.25).abs() < 1e-12);
-        assert_eq!(closest_on_triangle(&Vector3::new(-1.0, -1.0, 0.0), &a, &b, &c), [1.0, 0.0, 0.0]);
+        assert_eq!(
+            closest_on_triangle(&Vector3::new(-1.0, -1.0, 0.0), &a, &b, &c),
+            [1.0, 0.0, 0.0]
+        );
         let w = closest_on_triangle(&Vector3::new(1.0, 1.0, 0.0), &a, &b, &c);
         assert!((w[1] - 0.5).abs() < 1e-12 && (w[2] - 0.5).abs() < 1e-12);
     }

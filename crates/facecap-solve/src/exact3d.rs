@@ -213,7 +213,11 @@ impl DensePoints {
 
     /// The same points with another residual weight (clamped to `[0, 1e6]`).
     pub fn with_weight(mut self, weight: f64) -> Self {
-        self.weight = if weight.is_finite() { weight.clamp(0.0, 1e6) } else { 0.0 };
+        self.weight = if weight.is_finite() {
+            weight.clamp(0.0, 1e6)
+        } else {
+            0.0
+        };
         self
     }
 
@@ -443,7 +447,8 @@ impl Exact3dSolver {
         self.sqrt_w.truncate(m0);
         self.neutral.extend_from_slice(&points.neutral);
         self.deltas.extend_from_slice(&points.deltas);
-        self.sqrt_w.extend(std::iter::repeat(points.weight.sqrt()).take(points.len()));
+        self.sqrt_w
+            .extend(std::iter::repeat(points.weight.sqrt()).take(points.len()));
         self.dense_sources = points.sources;
         Ok(self)
     }
@@ -463,7 +468,12 @@ impl Exact3dSolver {
     /// (the image-plane residual back-projected and rotated into the model frame). `None`
     /// when the sizes do not fit, an observation is not finite or a point is behind the
     /// camera.
-    pub fn dense_offsets(&self, dense: &[[f32; 3]], weights: &[f64], pose: &ModelToCamera) -> Option<Vec<Vector3<f64>>> {
+    pub fn dense_offsets(
+        &self,
+        dense: &[[f32; 3]],
+        weights: &[f64],
+        pose: &ModelToCamera,
+    ) -> Option<Vec<Vector3<f64>>> {
         if weights.len() != self.n || self.dense_sources.iter().any(|&s| s >= dense.len()) {
             return None;
         }

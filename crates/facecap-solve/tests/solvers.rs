@@ -315,7 +315,11 @@ fn exact3d_dense_points_recover_a_shape_the_landmarks_cannot_see() {
             .unwrap();
         let e = rmse(&out.weights, &w);
         assert!(e < 0.03, "frame {i}: rmse {e}, {:?} vs {w:?}", out.weights);
-        assert!((out.weights[5] - 0.6).abs() < 0.05, "frame {i}: shape 5 at {}", out.weights[5]);
+        assert!(
+            (out.weights[5] - 0.6).abs() < 0.05,
+            "frame {i}: shape 5 at {}",
+            out.weights[5]
+        );
         // without the dense observations: exactly the 68-point solve
         let (o68, r68) = run(&plain, &f.landmarks);
         let (od, rd) = run(&dense, &f.landmarks);
@@ -324,7 +328,13 @@ fn exact3d_dense_points_recover_a_shape_the_landmarks_cannot_see() {
         assert!(o68.weights[5] < 1e-6, "frame {i}: the landmarks see shape 5?");
         // observations too short: the 68-point solve as well
         dense
-            .solve_dense_into(&f.landmarks, Some(&obs[..10]), &mut ws, &mut SolveState::new(n), &mut out)
+            .solve_dense_into(
+                &f.landmarks,
+                Some(&obs[..10]),
+                &mut ws,
+                &mut SolveState::new(n),
+                &mut out,
+            )
             .unwrap();
         assert_eq!(out.weights, o68.weights);
     }
