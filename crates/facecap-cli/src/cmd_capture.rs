@@ -125,6 +125,48 @@ pub struct Args {
     /// points; docs/mesh.md).
     #[arg(long, value_name = "dlib68|mesh", default_value = "dlib68")]
     pub landmarks: facecap_pipeline::FrontEnd,
+    /// Points of the face mesh the `exact3d` solve fits with `--landmarks mesh`: `all`
+    /// (the 68 iBUG points plus every other mesh point that lies on the rig;
+    /// docs/expressions.md, "Dense solve") or `68` (the 68 iBUG points only; landmarks.csv
+    /// has the 68 points either way). Ignored with `dlib68` and the 2D solvers.
+    #[arg(long, value_name = "all|68", default_value = "68", value_parser = ["all", "68"])]
+    pub mesh_points: String,
+    /// Weight of each dense mesh point's squared residual in the dense solve (the 68
+    /// iBUG points weigh 1). Default: 68 / (number of dense points), so that the dense
+    /// points together weigh as much as the 68.
+    #[arg(long, value_name = "W")]
+    pub mesh_point_weight: Option<f64>,
+}
+
+/// The dense points of `--mesh-points all` on a rig: the face mesh's points (all but its
+/// 68 iBUG ones) mapped onto the rig's neutral ([`facecap_solve::dense::map_onto_rig`]).
+pub(crate) fn dense_points(
+    rig_mesh: &MorphMesh,
+    map: &LandmarkMap,
+    weight: Option<f64>,
+) -> anyhow::Result<(facecap_solve::DensePoints, facecap_solve::dense::DenseMap)> {
+    use facecap_mesh::ibug68::IBUG68_FROM_MESH;
+    let params = facecap_solve::dense::DenseMapParams {
+        skip: IBUG68_FROM_MESH.to_vec(),
+        ..Default::default()
+    };
+    let m = facecap_solve::dense::map_onto_rig(
+        &facecap_mesh::canonical::CANONICAL_FACE,
+        &IBUG68_FROM_MESH,
+        &rig_mesh.base,
+        map,
+        &params,
+    )
+    .context("mapping the face mesh's points onto the rig (--mesh-points all)")?;
+    if m.targets.is_empty() {
+        anyhow::bail!("--mesh-points all: no face-mesh point lies on the rig's surface");
+    }
+    let w = match weight {
+        Some(w) if w.is_finite() && (0.0..=1e6).contains(&w) => w,
+        Some(w) => anyhow::bail!("--mesh-point-weight must be in [0, 1e6], got {w}"),
+        None => (68.0 / m.targets.len() as f64).min(1.0),
+    };
+    Ok((m.points(rig_mesh, w)?, m))
 }
 
 /// The rig, solver and camera flags of `capture` and `live` (the same meaning in both).
@@ -285,6 +327,7 @@ pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Resu
             method,
             objective,
             priors: priors.clone(),
+            dense: None,
         },
         neutral: NeutralHook {
             choice: neutral,
@@ -309,7 +352,11 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         expression,
         neutral,
     } = expression_parts(&args.solve, &args.neutral)?;
+    let mut expression = expression;
     let method = expression.method;
+    if args.mesh_points == "all" && args.landmarks == facecap_pipeline::FrontEnd::Mesh && method == Method::Exact3d {
+        expression.dense = Some(dense_points(&rig_mesh, &map, args.mesh_point_weight)?.0);
+    }
     let camera = args.solve.camera.as_deref().map(parse_camera).transpose()?;
     let tracker = VideoTracker::new(&TrackerPolicy {
         smooth: args.smooth,
@@ -365,6 +412,8 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "sheet_frames": args.sheet_frames,
         "upsample": args.detect.upsample.to_string(),
         "landmarks": args.landmarks.to_string(),
+        "mesh_points": args.mesh_points,
+        "mesh_point_weight": args.mesh_point_weight,
         "files": {
             "rig": file(args.solve.rig.as_ref()),
             "landmark_map": file(args.solve.landmark_map.as_ref()),
@@ -751,6 +800,12 @@ fn capture_one(
         "animation_fps": fps,
         "truth": truth,
         "neutral_calibration": result.neutral_report,
+        "solve_points": {
+            "landmarks": setup.expression.rig.num_mapped(),
+            "dense": setup.expression.dense.as_ref().map_or(0, |d| d.len()),
+            "dense_weight": setup.expression.dense.as_ref().map(|d| d.weight()),
+            "dense_frames": result.dense_frames,
+        },
         "settings": setup.args_echo,
         "resume": stamp.to_json(),
         "versions": {"facecap": env!("CARGO_PKG_VERSION")},

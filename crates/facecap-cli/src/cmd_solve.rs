@@ -186,6 +186,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         method,
         objective,
         priors,
+        dense: None,
     };
     let t0 = std::time::Instant::now();
     let mut sink = ExpressionSink::create(

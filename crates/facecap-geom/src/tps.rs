@@ -71,3 +71,92 @@ impl Tps {
         v
     }
 }
+
+/// Thin-plate (biharmonic) spline `R^3 -> R^3`: `f(x) = A x + b + sum_i c_i |x - x_i|`,
+/// the smoothest 3D warp taking each centre `x_i` exactly to its target `y_i` (the 3D
+/// kernel is `U(r) = r`).
+#[derive(Debug, Clone)]
+pub struct Tps3 {
+    centres: Vec<[f64; 3]>,
+    /// `(n + 4) x 3` coefficients: one per centre, then the affine part (constant, x, y, z).
+    coef: DMatrix<f64>,
+}
+
+impl Tps3 {
+    /// The warp taking `centres[i]` to `targets[i]`; `None` when the system is singular
+    /// (fewer than four non-coplanar centres, repeated centres) or the sizes differ.
+    pub fn fit(centres: &[[f64; 3]], targets: &[[f64; 3]]) -> Option<Self> {
+        let n = centres.len();
+        if n != targets.len() || n < 4 {
+            return None;
+        }
+        let mut a = DMatrix::zeros(n + 4, n + 4);
+        let mut b = DMatrix::zeros(n + 4, 3);
+        for i in 0..n {
+            for j in 0..n {
+                a[(i, j)] = dist3(&centres[i], &centres[j]);
+            }
+            a[(i, n)] = 1.0;
+            a[(n, i)] = 1.0;
+            for c in 0..3 {
+                a[(i, n + 1 + c)] = centres[i][c];
+                a[(n + 1 + c, i)] = centres[i][c];
+                b[(i, c)] = targets[i][c];
+            }
+        }
+        let coef = a.lu().solve(&b)?;
+        coef.iter().all(|v| v.is_finite()).then(|| Tps3 {
+            centres: centres.to_vec(),
+            coef,
+        })
+    }
+
+    /// The warped point.
+    pub fn apply(&self, p: &[f64; 3]) -> [f64; 3] {
+        let n = self.centres.len();
+        let mut out = [0.0; 3];
+        for (c, o) in out.iter_mut().enumerate() {
+            *o = self.coef[(n, c)] + (0..3).map(|k| self.coef[(n + 1 + k, c)] * p[k]).sum::<f64>();
+        }
+        for (i, x) in self.centres.iter().enumerate() {
+            let u = dist3(p, x);
+            for (c, o) in out.iter_mut().enumerate() {
+                *o += self.coef[(i, c)] * u;
+            }
+        }
+        out
+    }
+}
+
+fn dist3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+#[cfg(test)]
+mod tests3 {
+    use super::*;
+
+    #[test]
+    fn tps3_interpolates_and_reproduces_affine() {
+        let centres: Vec<[f64; 3]> = (0..10)
+            .map(|i| {
+                let t = i as f64;
+                [t.sin() * 3.0, (1.7 * t).cos() * 2.0, (0.3 * t * t).sin()]
+            })
+            .collect();
+        let affine = |p: &[f64; 3]| [2.0 * p[0] - p[1] + 1.0, p[1] + 0.5 * p[2], -p[0] + 3.0 * p[2] - 2.0];
+        let targets: Vec<[f64; 3]> = centres.iter().map(affine).collect();
+        let tps = Tps3::fit(&centres, &targets).unwrap();
+        let q = [0.3, -0.7, 0.2];
+        let (got, want) = (tps.apply(&q), affine(&q));
+        for c in 0..3 {
+            assert!((got[c] - want[c]).abs() < 1e-8, "{got:?} vs {want:?}");
+        }
+        let mut bent = targets.clone();
+        bent[3][2] += 0.5;
+        let tps = Tps3::fit(&centres, &bent).unwrap();
+        let y = tps.apply(&centres[3]);
+        assert!((y[2] - bent[3][2]).abs() < 1e-8);
+        assert!(Tps3::fit(&centres[..3], &bent[..3]).is_none());
+    }
+}

@@ -28,6 +28,7 @@
 //! by `scripts/setup.sh` into the model cache ([`FACE_DETECTOR_MODEL`],
 //! [`FACE_LANDMARKS_MODEL`]).
 
+pub mod canonical;
 pub mod detector;
 pub mod error;
 pub mod eyes;

@@ -20,7 +20,7 @@ use facecap_geom::pnp::{solve_pnp, PnpParams};
 use facecap_io::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
 use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
 use facecap_solve::{
-    AnySolver, BlendshapeRig, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
+    AnySolver, BlendshapeRig, DensePoints, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
 };
 use image::GrayImage;
 use nalgebra::{Point2, Point3};
@@ -39,6 +39,10 @@ pub struct ExpressionSetup {
     pub objective: ObjectiveParams,
     /// Per-shape priors of the 3D solver (`None`: none).
     pub priors: Option<ShapePriors>,
+    /// Dense points of the 3D solver, observed as the face mesh's points of each frame
+    /// ([`TrackedFace::mesh`]; `None`: the 68 landmarks only). Their neutral follows the
+    /// rig's neutral calibration ([`facecap_solve::dense::calibrate_points`]).
+    pub dense: Option<DensePoints>,
 }
 
 /// A calibrated rig and what was done (for `summary.json`).
@@ -86,7 +90,16 @@ pub fn build_expression_solve(
             None => s,
         })
     };
-    let solver = with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?;
+    let with_dense = |s: AnySolver, rig: &BlendshapeRig| -> Result<AnySolver> {
+        Ok(match &setup.dense {
+            Some(d) => s.with_dense(facecap_solve::dense::calibrate_points(d, &setup.rig, rig))?,
+            None => s,
+        })
+    };
+    let solver = with_dense(
+        with_priors(AnySolver::new(setup.method, &setup.rig, camera, setup.objective)?)?,
+        &setup.rig,
+    )?;
     let Some((cal, frames)) = calibration else {
         return Ok((solver, serde_json::Value::Null));
     };
@@ -100,7 +113,10 @@ pub fn build_expression_solve(
     let c = cal
         .calibrate(&solver, &setup.rig, camera, frames)
         .map_err(Error::Calibration)?;
-    let calibrated = with_priors(AnySolver::new(setup.method, &c.rig, camera, setup.objective)?)?;
+    let calibrated = with_dense(
+        with_priors(AnySolver::new(setup.method, &c.rig, camera, setup.objective)?)?,
+        &c.rig,
+    )?;
     Ok((calibrated, c.report))
 }
 
@@ -140,6 +156,8 @@ pub struct ExpressionResult {
     pub neutral_report: serde_json::Value,
     /// Per-frame solver failures (frame, message); those frames are written unsolved.
     pub failures: Vec<(u64, String)>,
+    /// Frames solved with the dense points ([`ExpressionSetup::dense`]) observed.
+    pub dense_frames: u64,
 }
 
 /// Largest plausible mean reprojection error of a solve, as a fraction of the tracked
@@ -369,6 +387,7 @@ impl<'a> ExpressionSink<'a> {
                 faces_found: 0,
                 neutral_report: serde_json::Value::Null,
                 failures: Vec::new(),
+                dense_frames: 0,
             },
             pnp_model: Vec::with_capacity(NUM_LANDMARKS),
             pnp_image: Vec::with_capacity(NUM_LANDMARKS),
@@ -562,12 +581,15 @@ impl<'a> ExpressionSink<'a> {
         if let Some(l) = &face.landmarks {
             self.result.faces_found += 1;
             let solved = solver
-                .solve_into(l, ws, state, &mut *solution)
+                .solve_dense_into(l, face.mesh.as_deref(), ws, state, &mut *solution)
                 .map_err(|e| e.to_string())
                 .and_then(|_| implausible_solve(l, solution.reprojection_error(l), solution.pose.as_ref()));
             match solved {
                 Ok(()) => {
                     out.success = true;
+                    if self.setup.dense.is_some() && face.mesh.is_some() {
+                        self.result.dense_frames += 1;
+                    }
                     out.weights.copy_from_slice(&solution.weights);
                     self.gaze.apply(face.iris.as_ref(), &mut out.weights);
                     for &k in &self.blink_idx {
@@ -662,6 +684,77 @@ impl Solving {
     }
 }
 
+/// Fewest frames [`calibrate_dense`] takes the dense points' neutral from.
+pub const DENSE_NEUTRAL_MIN_FRAMES: usize = 5;
+
+/// The subject's neutral at the dense points of a calibrated 3D solver: each frame of
+/// `faces` with landmarks and a mesh is solved on the landmarks alone (warm-started), and
+/// each dense point's model-space offset onto its observation
+/// ([`facecap_solve::Exact3dSolver::dense_offsets`]) is collected; the per-coordinate
+/// median over the clip is added to the point's neutral. The 68 landmarks get the
+/// subject's neutral from the calibration; this gives it to the dense points, which the
+/// generic map onto the rig cannot (the median keeps what stays put over the clip: the
+/// subject's shape, not the expressions). Returns a JSON report (`null` without dense
+/// points).
+pub fn calibrate_dense(solver: &mut AnySolver, faces: &[TrackedFace]) -> serde_json::Value {
+    let AnySolver::Exact3d(s) = solver else {
+        return serde_json::Value::Null;
+    };
+    let m = s.num_dense();
+    if m == 0 {
+        return serde_json::Value::Null;
+    }
+    let n = s.num_shapes();
+    let mut ws = s.workspace();
+    let mut state = SolveState::new(n);
+    let mut sol = Solution::new(n);
+    let mut per_point: Vec<[Vec<f64>; 3]> = vec![Default::default(); m];
+    let mut used = 0usize;
+    for f in faces {
+        let (Some(l), Some(mesh)) = (&f.landmarks, &f.mesh) else {
+            state.reset();
+            continue;
+        };
+        if s.solve_into(l, &mut ws, &mut state, &mut sol).is_err() {
+            state.reset();
+            continue;
+        }
+        let Some(pose) = sol.pose else { continue };
+        if let Some(off) = s.dense_offsets(mesh, &sol.weights, &pose) {
+            for (acc, o) in per_point.iter_mut().zip(&off) {
+                for c in 0..3 {
+                    acc[c].push(o[c]);
+                }
+            }
+            used += 1;
+        }
+    }
+    if used < DENSE_NEUTRAL_MIN_FRAMES {
+        return serde_json::json!({"mode": "skipped", "frames": used});
+    }
+    let median = |v: &mut Vec<f64>| -> f64 {
+        v.sort_by(f64::total_cmp);
+        let k = v.len() / 2;
+        if v.len() % 2 == 1 {
+            v[k]
+        } else {
+            0.5 * (v[k - 1] + v[k])
+        }
+    };
+    let offsets: Vec<nalgebra::Vector3<f64>> = per_point
+        .iter_mut()
+        .map(|[x, y, z]| nalgebra::Vector3::new(median(x), median(y), median(z)))
+        .collect();
+    s.shift_dense(&offsets);
+    let mean = offsets.iter().map(|o| o.norm()).sum::<f64>() / m as f64;
+    serde_json::json!({
+        "mode": "median offset over the clip after the landmarks' solve",
+        "points": m,
+        "frames": used,
+        "mean_offset_rig_units": mean,
+    })
+}
+
 /// The camera handed to the solver: the real one, or (2D solvers only, which do not
 /// use it) a unit camera.
 fn solver_camera(camera: Option<Intrinsics>) -> Result<Intrinsics> {
@@ -682,6 +775,10 @@ impl Sink for ExpressionSink<'_> {
 
     fn wants_iris(&self) -> bool {
         self.gaze.active()
+    }
+
+    fn wants_mesh(&self) -> bool {
+        self.setup.dense.is_some()
     }
 
     fn frame(&mut self, face: &TrackedFace) -> Result<()> {
@@ -715,7 +812,12 @@ impl Sink for ExpressionSink<'_> {
             .iter()
             .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
             .collect();
-        let (solver, report) = build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
+        let (mut solver, mut report) =
+            build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
+        let dense = calibrate_dense(&mut solver, &self.buffered);
+        if let (serde_json::Value::Object(o), false) = (&mut report, dense.is_null()) {
+            o.insert("dense".into(), dense);
+        }
         self.result.neutral_report = report;
         let irises: Vec<IrisFrame> = self.buffered.iter().filter_map(|t| t.iris).collect();
         self.gaze.rest = GazeRest::median_of(&irises);

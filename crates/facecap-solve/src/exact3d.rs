@@ -125,8 +125,111 @@ pub struct Exact3dSolver {
     ridge: f64,
     /// Per-shape and per-landmark terms (all neutral by default).
     priors: ShapePriors,
-    /// `sqrt` of the point weight of each mapped landmark (`idx` order).
+    /// `sqrt` of the point weight of each mapped landmark (`idx` order), then of each
+    /// dense point.
     sqrt_w: Vec<f64>,
+    /// Index of each dense point's observation in the dense input (see [`DensePoints`]);
+    /// `neutral`, `deltas` and `sqrt_w` hold the dense points after the `idx` ones.
+    dense_sources: Vec<usize>,
+}
+
+/// Extra model points of the 3D solve beyond the 68 iBUG landmarks (e.g. the face mesh's
+/// points on the rig, [`crate::dense::DenseMap::points`]): each one's neutral position and
+/// per-shape deltas (rig units), the index of its observation in the dense input, and the
+/// weight of its squared residual (the 68 landmarks keep their [`ShapePriors::point_weights`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DensePoints {
+    sources: Vec<usize>,
+    neutral: Vec<Vector3<f64>>,
+    /// `[j][k]`, row-major `m x n`.
+    deltas: Vec<Vector3<f64>>,
+    n: usize,
+    weight: f64,
+}
+
+impl DensePoints {
+    /// Checks sizes (`deltas` is `sources.len() x n`, row-major), finiteness and the
+    /// weight (`[0, 1e6]`).
+    ///
+    /// # Errors
+    /// Mismatched sizes, a non-finite coordinate or a weight out of range.
+    pub fn new(
+        sources: Vec<usize>,
+        neutral: Vec<Vector3<f64>>,
+        deltas: Vec<Vector3<f64>>,
+        n: usize,
+        weight: f64,
+    ) -> Result<Self> {
+        let m = sources.len();
+        if neutral.len() != m || deltas.len() != m * n {
+            return Err(Error::DimensionMismatch {
+                what: "dense points (neutral, deltas)".into(),
+                expected: m * (n + 1),
+                got: neutral.len() + deltas.len(),
+            });
+        }
+        check_range("dense point weight", weight, 0.0, 1e6)?;
+        if neutral.iter().chain(&deltas).any(|v| !v.iter().all(|x| x.is_finite())) {
+            return Err(Error::rig("dense points", "non-finite coordinate"));
+        }
+        Ok(DensePoints {
+            sources,
+            neutral,
+            deltas,
+            n,
+            weight,
+        })
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.sources.len()
+    }
+
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.sources.is_empty()
+    }
+
+    /// Observation index of each point in the dense input.
+    pub fn sources(&self) -> &[usize] {
+        &self.sources
+    }
+
+    /// Neutral positions.
+    pub fn neutral(&self) -> &[Vector3<f64>] {
+        &self.neutral
+    }
+
+    /// Per-shape deltas, row-major `len() x n`.
+    pub fn deltas(&self) -> &[Vector3<f64>] {
+        &self.deltas
+    }
+
+    /// The residual weight.
+    pub fn weight(&self) -> f64 {
+        self.weight
+    }
+
+    /// The same points with another residual weight (clamped to `[0, 1e6]`).
+    pub fn with_weight(mut self, weight: f64) -> Self {
+        self.weight = if weight.is_finite() {
+            weight.clamp(0.0, 1e6)
+        } else {
+            0.0
+        };
+        self
+    }
+
+    /// Adds `offset(p)` to each neutral position `p` (non-finite offsets are ignored).
+    pub fn shift_neutral(&mut self, offset: impl Fn(&Vector3<f64>) -> Vector3<f64>) {
+        for p in &mut self.neutral {
+            let o = offset(p);
+            if o.iter().all(|x| x.is_finite()) {
+                *p += o;
+            }
+        }
+    }
 }
 
 /// Per-shape and per-landmark terms of the 3D objective beyond [`ObjectiveParams`]:
@@ -213,6 +316,9 @@ pub struct Exact3dWorkspace {
     obs: Vec<f64>,
     /// Residuals, `2m`.
     r: Vec<f64>,
+    /// Points in this frame's solve (the mapped landmarks, plus the dense points when
+    /// observed).
+    m: usize,
     /// Jacobian `2m x (6 + n)` row-major.
     a: Vec<f64>,
     h: Vec<f64>,
@@ -295,6 +401,7 @@ impl Exact3dSolver {
         }
         let sqrt_w = vec![1.0; idx.len()];
         Ok(Exact3dSolver {
+            dense_sources: Vec::new(),
             names: rig.names.clone(),
             n,
             idx,
@@ -313,9 +420,93 @@ impl Exact3dSolver {
     /// When the priors do not fit the rig or are out of range.
     pub fn with_priors(mut self, priors: ShapePriors) -> Result<Self> {
         priors.validate(self.n)?;
-        self.sqrt_w = self.idx.iter().map(|&l| priors.point_weights[l].sqrt()).collect();
+        for (w, &l) in self.sqrt_w.iter_mut().zip(&self.idx) {
+            *w = priors.point_weights[l].sqrt();
+        }
         self.priors = priors;
         Ok(self)
+    }
+
+    /// The same solver with extra model points (see [`DensePoints`]), used by
+    /// [`Exact3dSolver::solve_dense_into`] when their observations are given. Replaces
+    /// any dense points set before.
+    ///
+    /// # Errors
+    /// Points made for a rig with another number of shapes.
+    pub fn with_dense(mut self, points: DensePoints) -> Result<Self> {
+        if points.n != self.n {
+            return Err(Error::DimensionMismatch {
+                what: "dense points' shapes".into(),
+                expected: self.n,
+                got: points.n,
+            });
+        }
+        let m0 = self.idx.len();
+        self.neutral.truncate(m0);
+        self.deltas.truncate(m0 * self.n);
+        self.sqrt_w.truncate(m0);
+        self.neutral.extend_from_slice(&points.neutral);
+        self.deltas.extend_from_slice(&points.deltas);
+        self.sqrt_w
+            .extend(std::iter::repeat(points.weight.sqrt()).take(points.len()));
+        self.dense_sources = points.sources;
+        Ok(self)
+    }
+
+    /// Number of dense points (0 without [`Exact3dSolver::with_dense`]).
+    pub fn num_dense(&self) -> usize {
+        self.dense_sources.len()
+    }
+
+    /// Number of mapped iBUG landmarks.
+    pub fn num_landmarks(&self) -> usize {
+        self.idx.len()
+    }
+
+    /// For a solved frame (`weights`, `pose`), the model-space offset of each dense point
+    /// that would put its projection on its observation in `dense` at the point's depth
+    /// (the image-plane residual back-projected and rotated into the model frame). `None`
+    /// when the sizes do not fit, an observation is not finite or a point is behind the
+    /// camera.
+    pub fn dense_offsets(
+        &self,
+        dense: &[[f32; 3]],
+        weights: &[f64],
+        pose: &ModelToCamera,
+    ) -> Option<Vec<Vector3<f64>>> {
+        if weights.len() != self.n || self.dense_sources.iter().any(|&s| s >= dense.len()) {
+            return None;
+        }
+        let m0 = self.idx.len();
+        let mut posed = vec![Vector3::zeros(); self.neutral.len()];
+        self.pose_points(weights, &mut posed);
+        let p = Pose::from_model_to_camera(pose);
+        let k = &self.params.camera;
+        let rt = p.r.inverse();
+        let mut out = Vec::with_capacity(self.dense_sources.len());
+        for (j, &s) in self.dense_sources.iter().enumerate() {
+            let c = p.r * posed[m0 + j] + p.t;
+            let (u, v) = (f64::from(dense[s][0]), f64::from(dense[s][1]));
+            if c.z <= MIN_DEPTH || !u.is_finite() || !v.is_finite() {
+                return None;
+            }
+            let target = Vector3::new((u - k.cx) * c.z / k.fx, (v - k.cy) * c.z / k.fy, c.z);
+            out.push(rt * (target - c));
+        }
+        Some(out)
+    }
+
+    /// Adds `offsets[j]` to dense point `j`'s neutral (e.g. the subject's neutral at the
+    /// dense points, from [`Exact3dSolver::dense_offsets`] over resting frames). Ignored
+    /// when the size is not the number of dense points or an offset is not finite.
+    pub fn shift_dense(&mut self, offsets: &[Vector3<f64>]) {
+        let m0 = self.idx.len();
+        if offsets.len() != self.dense_sources.len() || offsets.iter().any(|o| !o.iter().all(|x| x.is_finite())) {
+            return;
+        }
+        for (p, o) in self.neutral[m0..].iter_mut().zip(offsets) {
+            *p += o;
+        }
     }
 
     /// The priors in use.
@@ -386,8 +577,9 @@ impl Exact3dSolver {
         let cols = POSE + n;
         let k = &self.params.camera;
         let e = &ws.e;
-        self.pose_points(e, &mut ws.posed);
-        for (j, x) in ws.posed.iter().enumerate() {
+        let m = ws.m;
+        self.pose_points(e, &mut ws.posed[..m]);
+        for (j, x) in ws.posed[..m].iter().enumerate() {
             let rx = pose.r * x;
             let c = rx + pose.t;
             if c.z <= MIN_DEPTH {
@@ -415,11 +607,12 @@ impl Exact3dSolver {
 
     /// Affine-camera initial pose for weights `e` (module docs, step 1).
     fn initial_pose(&self, ws: &mut Exact3dWorkspace) -> Result<Pose> {
-        self.pose_points(&ws.e, &mut ws.posed);
+        let np = ws.m;
+        self.pose_points(&ws.e, &mut ws.posed[..np]);
         let k = &self.params.camera;
         let mut m = Matrix4::<f64>::zeros();
         let (mut bu, mut bv) = (Vector4::<f64>::zeros(), Vector4::<f64>::zeros());
-        for (j, x) in ws.posed.iter().enumerate() {
+        for (j, x) in ws.posed[..np].iter().enumerate() {
             let h = Vector4::new(x.x, x.y, x.z, 1.0);
             m += h * h.transpose();
             bu += h * ws.obs[2 * j];
@@ -461,8 +654,9 @@ impl Exact3dSolver {
         if self.params.pose_iterations == 0 {
             return cost;
         }
-        self.pose_points(&ws.e, &mut ws.posed);
-        for (j, x) in ws.posed.iter().enumerate() {
+        let m = ws.m;
+        self.pose_points(&ws.e, &mut ws.posed[..m]);
+        for (j, x) in ws.posed[..m].iter().enumerate() {
             ws.rigid_model[j] = Point3::from(*x);
             ws.rigid_image[j] = Point2::new(ws.obs[2 * j], ws.obs[2 * j + 1]);
             ws.rigid_w[j] = self.sqrt_w[j] * self.sqrt_w[j];
@@ -477,9 +671,9 @@ impl Exact3dSolver {
         if refine_pose(
             &mut refined,
             k,
-            &ws.rigid_model,
-            &ws.rigid_image,
-            Some(&ws.rigid_w),
+            &ws.rigid_model[..m],
+            &ws.rigid_image[..m],
+            Some(&ws.rigid_w[..m]),
             &lm,
         )
         .is_err()
@@ -487,7 +681,7 @@ impl Exact3dSolver {
             return cost;
         }
         let trial = Pose::from_model_to_camera(&refined);
-        let c = self.cost(&trial, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
+        let c = self.cost(&trial, &ws.e, &mut ws.posed[..m], &ws.obs, &ws.rho, prev);
         if c < cost {
             *pose = trial;
             c
@@ -509,7 +703,7 @@ impl ExpressionSolver for Exact3dSolver {
     }
 
     fn workspace(&self) -> Exact3dWorkspace {
-        let m = self.idx.len();
+        let m = self.neutral.len();
         let n = self.n;
         let cols = POSE + n;
         let mut lo = vec![f64::NEG_INFINITY; cols];
@@ -518,6 +712,7 @@ impl ExpressionSolver for Exact3dSolver {
         hi[POSE..].fill(1.0);
         Exact3dWorkspace {
             posed: vec![Vector3::zeros(); m],
+            m: self.idx.len(),
             obs: vec![0.0; 2 * m],
             r: vec![0.0; 2 * m],
             a: vec![0.0; 2 * m * cols],
@@ -543,8 +738,44 @@ impl ExpressionSolver for Exact3dSolver {
         state: &mut SolveState,
         out: &mut Solution,
     ) -> Result<Report> {
+        self.solve_dense_into(input, None, ws, state, out)
+    }
+}
+
+impl Exact3dSolver {
+    /// [`ExpressionSolver::solve_into`] with the dense points' observations too: `dense`
+    /// holds the dense input (e.g. the face mesh's 478 points, pixels; `z` unused), read at
+    /// each dense point's source index. Without it, or when it is too short or not finite
+    /// at a used index, the frame is solved on the landmarks alone (as `solve_into`).
+    ///
+    /// # Errors
+    /// As [`ExpressionSolver::solve_into`].
+    pub fn solve_dense_into(
+        &self,
+        input: &Landmarks68,
+        dense: Option<&[[f32; 3]]>,
+        ws: &mut Exact3dWorkspace,
+        state: &mut SolveState,
+        out: &mut Solution,
+    ) -> Result<Report> {
         let n = self.n;
         check_io(n, input, state, out)?;
+        let m0 = self.idx.len();
+        ws.m = m0;
+        if let Some(d) = dense {
+            let usable = !self.dense_sources.is_empty()
+                && self
+                    .dense_sources
+                    .iter()
+                    .all(|&s| s < d.len() && d[s][0].is_finite() && d[s][1].is_finite());
+            if usable {
+                for (j, &s) in self.dense_sources.iter().enumerate() {
+                    ws.obs[2 * (m0 + j)] = f64::from(d[s][0]);
+                    ws.obs[2 * (m0 + j) + 1] = f64::from(d[s][1]);
+                }
+                ws.m = self.neutral.len();
+            }
+        }
         let obj = self.params.objective;
         let mu = if state.has_previous { obj.temporal } else { 0.0 };
         for (j, &l) in self.idx.iter().enumerate() {
@@ -566,10 +797,10 @@ impl ExpressionSolver for Exact3dSolver {
             (Some(p), true) => Pose::from_model_to_camera(p),
             _ => self.initial_pose(ws)?,
         };
-        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
+        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
         if !cost.is_finite() {
             pose = self.initial_pose(ws)?;
-            cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
+            cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
             if !cost.is_finite() {
                 return Err(Error::Input {
                     reason: "no pose puts the face in front of the camera".into(),
@@ -596,7 +827,7 @@ impl ExpressionSolver for Exact3dSolver {
                 if !changed {
                     break;
                 }
-                cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, prev);
+                cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
             }
             for _ in 0..self.params.max_alternations {
                 iterations += 1;
@@ -606,7 +837,7 @@ impl ExpressionSolver for Exact3dSolver {
                     break;
                 }
                 // H = 2 A^T A (+ 2 mu on e), g = -2 A^T c - lambda + 2 mu e_prev, c = r - A_e e
-                let rows = ws.r.len();
+                let rows = 2 * ws.m;
                 for row in 0..rows {
                     let mut c = ws.r[row];
                     for kk in 0..n {
@@ -661,7 +892,7 @@ impl ExpressionSolver for Exact3dSolver {
                     for kk in 0..n {
                         ws.e_trial[kk] = ws.e[kk] + alpha * (ws.z[POSE + kk] - ws.e[kk]);
                     }
-                    let c = self.cost(&trial_pose, &ws.e_trial, &mut ws.posed, &ws.obs, &ws.rho, prev);
+                    let c = self.cost(&trial_pose, &ws.e_trial, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
                     if c < cost {
                         pose = trial_pose;
                         ws.e.copy_from_slice(&ws.e_trial);
@@ -682,7 +913,7 @@ impl ExpressionSolver for Exact3dSolver {
         }
         // outputs
         let k = &self.params.camera;
-        self.pose_points(&ws.e, &mut ws.posed);
+        self.pose_points(&ws.e, &mut ws.posed[..ws.m]);
         out.fitted = [Point2::new(f64::NAN, f64::NAN); NUM_LANDMARKS];
         for (j, &l) in self.idx.iter().enumerate() {
             let c = pose.r * ws.posed[j] + pose.t;
@@ -743,6 +974,7 @@ impl Exact3dSolver {
             });
         }
         ws.e.copy_from_slice(weights);
+        ws.m = self.idx.len();
         for (j, &l) in self.idx.iter().enumerate() {
             ws.obs[2 * j] = input.points[l].x;
             ws.obs[2 * j + 1] = input.points[l].y;
@@ -752,7 +984,7 @@ impl Exact3dSolver {
         for (r, p) in ws.rho.iter_mut().zip(&self.priors.ridge) {
             *r = p * scale;
         }
-        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed, &ws.obs, &ws.rho, None);
+        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, None);
         let mut s = self.clone();
         s.params.pose_iterations = 50;
         for _ in 0..4 {

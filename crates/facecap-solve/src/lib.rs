@@ -41,6 +41,7 @@ pub mod basis;
 pub mod bobyqa;
 pub mod bobyqa_solver;
 pub mod calibrate;
+pub mod dense;
 pub mod error;
 pub mod exact;
 pub mod exact3d;
@@ -56,7 +57,7 @@ pub use bobyqa_solver::{BobyqaParams, BobyqaSolver};
 pub use calibrate::{fit_subject, fit_subject_with_identity, IdentityModes, SubjectFit, SubjectParams};
 pub use error::{Error, Result};
 pub use exact::{ExactParams, ExactSolver};
-pub use exact3d::{Exact3dParams, Exact3dSolver, ShapePriors};
+pub use exact3d::{DensePoints, Exact3dParams, Exact3dSolver, ShapePriors};
 pub use pca::{PcaParams, PcaSolver};
 pub use region::{RegionGroup, RegionParams, RegionSolver};
 pub use rig::BlendshapeRig;
@@ -203,7 +204,51 @@ impl AnySolver {
             other => other,
         })
     }
+
+    /// Adds dense points (see [`DensePoints`]) to the 3D method; the 2D methods are
+    /// returned unchanged.
+    ///
+    /// # Errors
+    /// When the points do not fit the rig.
+    pub fn with_dense(self, points: DensePoints) -> Result<Self> {
+        Ok(match self {
+            AnySolver::Exact3d(s) => AnySolver::Exact3d(s.with_dense(points)?),
+            other => other,
+        })
+    }
+
+    /// Number of points the solve uses when the dense input is given: the mapped
+    /// landmarks plus the dense points of the 3D method (the landmarks alone otherwise).
+    pub fn num_points(&self) -> usize {
+        match self {
+            AnySolver::Exact3d(s) => s.num_landmarks() + s.num_dense(),
+            _ => NUM_POINTS_2D,
+        }
+    }
+
+    /// [`ExpressionSolver::solve_into`] with the dense input (e.g. the face mesh's points),
+    /// used by the 3D method's dense points ([`Exact3dSolver::solve_dense_into`]) and
+    /// ignored by the others.
+    ///
+    /// # Errors
+    /// As [`ExpressionSolver::solve_into`].
+    pub fn solve_dense_into(
+        &self,
+        input: &facecap_core::landmarks::Landmarks68,
+        dense: Option<&[[f32; 3]]>,
+        ws: &mut AnyWorkspace,
+        state: &mut SolveState,
+        out: &mut Solution,
+    ) -> Result<Report> {
+        match (self, ws) {
+            (AnySolver::Exact3d(s), AnyWorkspace::Exact3d(w)) => s.solve_dense_into(input, dense, w, state, out),
+            (s, w) => s.solve_into(input, w, state, out),
+        }
+    }
 }
+
+/// Points of the 2D methods (the 68 landmarks).
+const NUM_POINTS_2D: usize = facecap_core::landmarks::NUM_LANDMARKS;
 
 impl ExpressionSolver for AnySolver {
     type Workspace = AnyWorkspace;

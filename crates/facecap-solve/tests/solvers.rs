@@ -250,3 +250,96 @@ fn invalid_inputs_and_params_are_errors() {
     };
     assert!(RegionSolver::new(&basis, bad_groups).is_err());
 }
+
+/// Dense points on a synthetic rig: `m` points between the landmarks, each with its own
+/// random deltas for every shape.
+fn dense_points(rig: &BlendshapeRig, m: usize, seed: u64) -> facecap_solve::DensePoints {
+    use nalgebra::Vector3;
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let n = rig.num_shapes();
+    let zero = vec![0.0; n];
+    let mut neutral = Vec::new();
+    let mut deltas = Vec::new();
+    for _ in 0..m {
+        let (a, b) = (rng.random_range(0..68), rng.random_range(0..68));
+        let t: f64 = rng.random_range(0.2..0.8);
+        let (pa, pb) = (rig.landmark(a, &zero), rig.landmark(b, &zero));
+        neutral.push(pa.coords * t + pb.coords * (1.0 - t) + Vector3::new(0.0, 0.0, 0.3));
+        for _ in 0..n {
+            deltas.push(Vector3::new(
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.3..0.3),
+                rng.random_range(-0.1..0.1),
+            ));
+        }
+    }
+    facecap_solve::DensePoints::new((0..m).collect(), neutral, deltas, n, 68.0 / m as f64).unwrap()
+}
+
+#[test]
+fn exact3d_dense_points_recover_a_shape_the_landmarks_cannot_see() {
+    let n = 12;
+    let mut rig = BlendshapeRig::synthetic(n, 3);
+    // shape 5 does not move any of the 68 landmarks
+    rig.deltas.index_axis_mut(ndarray::Axis(0), 5).fill(0.0);
+    let cam = camera();
+    let frames = generate(&rig, &cam, 640.0, &SynthParams::default(), 8, 7);
+    let points = dense_points(&rig, 200, 11);
+    let plain = Exact3dSolver::new(&rig, Exact3dParams::new(cam)).unwrap();
+    let dense = plain.clone().with_dense(points.clone()).unwrap();
+    assert_eq!((dense.num_landmarks(), dense.num_dense()), (68, 200));
+    for (i, f) in frames.iter().enumerate() {
+        let mut w = f.weights.clone();
+        w[5] = 0.6;
+        // the 68 landmarks do not change with shape 5; the dense points do
+        let obs: Vec<[f32; 3]> = (0..points.len())
+            .map(|j| {
+                let mut p = points.neutral()[j];
+                for (k, wk) in w.iter().enumerate() {
+                    p += dense_delta(&points, j, k, n) * *wk;
+                }
+                let c = f.pose.0 * nalgebra::Point3::from(p);
+                [
+                    (cam.fx * c.x / c.z + cam.cx) as f32,
+                    (cam.fy * c.y / c.z + cam.cy) as f32,
+                    0.0,
+                ]
+            })
+            .collect();
+        let mut ws = dense.workspace();
+        let mut st = SolveState::new(n);
+        let mut out = Solution::new(n);
+        dense
+            .solve_dense_into(&f.landmarks, Some(&obs), &mut ws, &mut st, &mut out)
+            .unwrap();
+        let e = rmse(&out.weights, &w);
+        assert!(e < 0.03, "frame {i}: rmse {e}, {:?} vs {w:?}", out.weights);
+        assert!(
+            (out.weights[5] - 0.6).abs() < 0.05,
+            "frame {i}: shape 5 at {}",
+            out.weights[5]
+        );
+        // without the dense observations: exactly the 68-point solve
+        let (o68, r68) = run(&plain, &f.landmarks);
+        let (od, rd) = run(&dense, &f.landmarks);
+        assert_eq!(o68.weights, od.weights, "frame {i}");
+        assert_eq!(r68.cost.to_bits(), rd.cost.to_bits(), "frame {i}");
+        assert!(o68.weights[5] < 1e-6, "frame {i}: the landmarks see shape 5?");
+        // observations too short: the 68-point solve as well
+        dense
+            .solve_dense_into(
+                &f.landmarks,
+                Some(&obs[..10]),
+                &mut ws,
+                &mut SolveState::new(n),
+                &mut out,
+            )
+            .unwrap();
+        assert_eq!(out.weights, o68.weights);
+    }
+}
+
+fn dense_delta(points: &facecap_solve::DensePoints, j: usize, k: usize, n: usize) -> nalgebra::Vector3<f64> {
+    points.deltas()[j * n + k]
+}
