@@ -150,14 +150,10 @@ pub(crate) fn dense_points(
         skip: IBUG68_FROM_MESH.to_vec(),
         ..Default::default()
     };
-    let m = facecap_solve::dense::map_onto_rig(
-        &facecap_mesh::canonical::CANONICAL_FACE,
-        &IBUG68_FROM_MESH,
-        &rig_mesh.base,
-        map,
-        &params,
-    )
-    .context("mapping the face mesh's points onto the rig (--mesh-points all)")?;
+    let canonical = facecap_mesh::canonical::canonical_face_from_cache()
+        .context("reading MediaPipe's canonical face (--mesh-points all)")?;
+    let m = facecap_solve::dense::map_onto_rig(&canonical, &IBUG68_FROM_MESH, &rig_mesh.base, map, &params)
+        .context("mapping the face mesh's points onto the rig (--mesh-points all)")?;
     if m.targets.is_empty() {
         anyhow::bail!("--mesh-points all: no face-mesh point lies on the rig's surface");
     }

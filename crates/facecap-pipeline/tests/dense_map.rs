@@ -7,7 +7,7 @@
 use std::io::Write;
 
 use facecap_core::landmark_map::LandmarkMap;
-use facecap_mesh::canonical::CANONICAL_FACE;
+use facecap_mesh::canonical::{read_canonical_face, GEOMETRY_METADATA};
 use facecap_mesh::ibug68::IBUG68_FROM_MESH;
 use facecap_solve::dense::{map_onto_rig, DenseMapParams};
 use nalgebra::Vector3;
@@ -22,6 +22,10 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
     else {
         return;
     };
+    let Some(geometry) = facecap_core::paths::model_file_or_skip(test, GEOMETRY_METADATA) else {
+        return;
+    };
+    let canonical = read_canonical_face(&geometry).unwrap();
     let mesh = facecap_io::gltf_io::read_morph_mesh(&glb).unwrap();
     let map = LandmarkMap::from_json_file(&map_file).unwrap();
     let params = DenseMapParams {
@@ -29,13 +33,13 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
         ..DenseMapParams::default()
     };
     let t = std::time::Instant::now();
-    let m = map_onto_rig(&CANONICAL_FACE, &IBUG68_FROM_MESH, &mesh.base, &map, &params).unwrap();
+    let m = map_onto_rig(&canonical, &IBUG68_FROM_MESH, &mesh.base, &map, &params).unwrap();
     let secs = t.elapsed().as_secs_f64();
     let pos = m.neutral_positions(&mesh.base);
     eprintln!(
         "mapped {} of {} points ({} dropped: {:?}), similarity RMS {:.3} IOD, max residual {:.3} IOD, {secs:.2} s",
         m.targets.len(),
-        CANONICAL_FACE.len() - IBUG68_FROM_MESH.len(),
+        canonical.len() - IBUG68_FROM_MESH.len(),
         m.dropped.len(),
         m.dropped,
         m.similarity_rms_iod,
