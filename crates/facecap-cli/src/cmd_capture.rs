@@ -144,7 +144,7 @@ pub(crate) fn dense_points(
     rig_mesh: &MorphMesh,
     map: &LandmarkMap,
     weight: Option<f64>,
-) -> anyhow::Result<(facecap_solve::DensePoints, facecap_solve::dense::DenseMap)> {
+) -> anyhow::Result<facecap_solve::DensePoints> {
     use facecap_mesh::ibug68::IBUG68_FROM_MESH;
     let params = facecap_solve::dense::DenseMapParams {
         skip: IBUG68_FROM_MESH.to_vec(),
@@ -162,7 +162,7 @@ pub(crate) fn dense_points(
         Some(w) => anyhow::bail!("--mesh-point-weight must be in [0, 1e6], got {w}"),
         None => (68.0 / m.targets.len() as f64).min(1.0),
     };
-    Ok((m.points(rig_mesh, w)?, m))
+    Ok(m.points(rig_mesh, w)?)
 }
 
 /// The rig, solver and camera flags of `capture` and `live` (the same meaning in both).
@@ -345,13 +345,12 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         map,
         rig_name,
         renderer,
-        expression,
+        mut expression,
         neutral,
     } = expression_parts(&args.solve, &args.neutral)?;
-    let mut expression = expression;
     let method = expression.method;
     if args.mesh_points == "all" && args.landmarks == facecap_pipeline::FrontEnd::Mesh && method == Method::Exact3d {
-        expression.dense = Some(dense_points(&rig_mesh, &map, args.mesh_point_weight)?.0);
+        expression.dense = Some(dense_points(&rig_mesh, &map, args.mesh_point_weight)?);
     }
     let camera = args.solve.camera.as_deref().map(parse_camera).transpose()?;
     let tracker = VideoTracker::new(&TrackerPolicy {
