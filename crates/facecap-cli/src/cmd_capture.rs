@@ -606,7 +606,8 @@ fn capture_one(
             false
         }
     };
-    let source = facecap_pipeline::open_video_rgb(video, args.decode_threads, args.strict, setup.tracker.needs_rgb())?;
+    let mut source =
+        facecap_pipeline::open_video_rgb(video, args.decode_threads, args.strict, setup.tracker.needs_rgb())?;
     let info = source.info().clone();
     std::fs::create_dir_all(out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     // Temporary files of an earlier run that was killed (SIGKILL, power loss) go first.
@@ -627,6 +628,27 @@ fn capture_one(
         .frame_count
         .map(|n| (n / args.sheet_frames.max(1) as u64).max(1))
         .unwrap_or(30);
+    let preview_params = facecap_pipeline::PreviewParams {
+        decode_threads: args.decode_threads,
+        video_fps: Some(info.fps),
+        ..facecap_pipeline::PreviewParams::default()
+    };
+    // The preview's frames (and the report's stills, with room for frames lost on the
+    // way) are kept small and in colour as they are decoded for tracking, so that the
+    // preview does not decode the video a second time.
+    let mut colour = None;
+    if !args.no_preview {
+        let extra = (0..(args.sheet_frames.max(1) as u64 + 8).min(facecap_io::video::MAX_SELECT_EXTRA as u64))
+            .map(|i| i * sheet_every)
+            .collect();
+        if let Some(tap) = preview_params.colour_tap(info.width, info.height, info.fps, extra) {
+            if source.tap_colour(tap)? {
+                colour = Some(facecap_pipeline::ColourFrames::new(
+                    facecap_pipeline::COLOUR_FRAMES_BUDGET,
+                ));
+            }
+        }
+    }
     let calibrate = setup.neutral.active();
     let mut landmarks = LandmarkCsvSink::create(out_dir.join("landmarks.csv"))?;
     let mut solve = ExpressionSink::create(
@@ -657,6 +679,9 @@ fn capture_one(
         }
         if let Some(t) = tensor.as_mut() {
             sinks.push(t);
+        }
+        if let Some(c) = colour.as_mut() {
+            sinks.push(c);
         }
         let mut inc = || bar.inc();
         setup.tracker.run(
@@ -712,19 +737,26 @@ fn capture_one(
         let _ = std::fs::remove_file(&preview_path);
         (None, Vec::new())
     } else {
-        let (rep, stills) = facecap_pipeline::write_preview(
+        let stored = colour.and_then(|c| {
+            if c.overflowed() {
+                crate::out::verbose(&format!(
+                    "{}: the preview's frames exceed {} MiB: decoding the video again for the preview",
+                    video.display(),
+                    facecap_pipeline::COLOUR_FRAMES_BUDGET >> 20
+                ));
+            }
+            c.into_source(video, &info)
+        });
+        let (rep, stills) = facecap_pipeline::write_preview_stored(
             video,
+            stored,
             (info.width, info.height),
             frames,
             names,
             &setup.renderer,
             &camera,
             &preview_path,
-            &facecap_pipeline::PreviewParams {
-                decode_threads: args.decode_threads,
-                video_fps: Some(info.fps),
-                ..facecap_pipeline::PreviewParams::default()
-            },
+            &preview_params,
             &keep,
             Some(interrupted),
         )?;

@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use facecap_core::Error;
 use facecap_io::video::ffmpeg::{locate_ffmpeg, locate_ffprobe, FfmpegSource};
+use facecap_io::video::small::ColourTap;
 use facecap_io::video::y4m::write_gray_y4m;
 use facecap_io::video::{open_source, Frame, FrameSelect, FrameSource, Luma, SourceKind, SourceOptions};
 use image::{GrayImage, Luma as Px, Rgb, RgbImage};
@@ -226,6 +227,80 @@ fn decode_rgb(path: &Path, opts: &SourceOptions) -> Vec<(u64, f64, Vec<u8>)> {
         out.push((f.index, f.timestamp_s, f.rgb.as_ref().unwrap().as_raw().clone()));
     }
     out
+}
+
+#[test]
+fn colour_tap_keeps_small_copies_of_the_chosen_frames_as_ffmpeg_scales_them() {
+    let test = "colour_tap_keeps_small_copies_of_the_chosen_frames_as_ffmpeg_scales_them";
+    let Some(path) = facecap_core::paths::shared_data_file(test, "videos/liveportrait_d18.mp4") else {
+        return;
+    };
+    if ffmpeg_or_skip(test).is_none() {
+        return;
+    }
+    // what the preview decoded before: ffmpeg's own bilinear scaling to 360x360, in RGB
+    let reference = decode_rgb(
+        &path,
+        &SourceOptions {
+            rgb: true,
+            scale: Some((360, 360)),
+            ..Default::default()
+        },
+    );
+    let select = FrameSelect {
+        stride: 2,
+        extra: vec![7, 101],
+    };
+    // the tracking pass: grey frames at full size, the tap on top
+    let mut src = open_source(&path, &SourceOptions::default()).unwrap();
+    assert!(src
+        .tap_colour(ColourTap {
+            size: (360, 360),
+            select: select.clone(),
+        })
+        .unwrap());
+    let mut f = Frame::default();
+    let (mut copies, mut frames) = (0, 0);
+    let mut rgb = RgbImage::new(1, 1);
+    while src.read_into(&mut f).unwrap() {
+        frames += 1;
+        assert_eq!(
+            (f.gray.width(), f.gray.height()),
+            (480, 480),
+            "the tracking frames stay full size"
+        );
+        let Some(small) = f.small.as_ref() else {
+            assert!(!select.contains(f.index), "frame {} has no copy", f.index);
+            continue;
+        };
+        assert!(select.contains(f.index), "frame {} was not asked for", f.index);
+        copies += 1;
+        small.to_rgb_into(&mut rgb);
+        assert_eq!(rgb.dimensions(), (360, 360));
+        let want = &reference[f.index as usize].2;
+        let diff: f64 = rgb
+            .as_raw()
+            .iter()
+            .zip(want)
+            .map(|(a, b)| (f64::from(*a) - f64::from(*b)).abs())
+            .sum::<f64>()
+            / want.len() as f64;
+        // a different scaler and 4:2:0 chroma: close, not equal
+        assert!(
+            diff < 3.0,
+            "frame {}: mean difference {diff} to ffmpeg's scaling",
+            f.index
+        );
+    }
+    assert_eq!((frames, copies), (216, 108 + 2));
+    // a tap larger than the video is refused
+    let mut src = open_source(&path, &SourceOptions::default()).unwrap();
+    assert!(src
+        .tap_colour(ColourTap {
+            size: (481, 360),
+            select,
+        })
+        .is_err());
 }
 
 #[test]

@@ -66,7 +66,9 @@ pub use expression::{
 pub use live::{open_live, ChildGuard, LatestFrame, LiveInput};
 pub use muscle::{MuscleFrame, MuscleSetup, MuscleSink};
 pub use net::{LiveOutputs, LiveSink};
-pub use preview::{write_preview, PreviewParams, PreviewReport};
+pub use preview::{
+    write_preview, write_preview_stored, ColourFrames, PreviewParams, PreviewReport, COLOUR_FRAMES_BUDGET,
+};
 pub use render::{RenderWorkspace, RigRenderer, View};
 pub use sink::{FrameImages, Sink, TrackedFace};
 pub use sinks::{LandmarkCsvSink, LandmarkLayout, LandmarkRecorder};

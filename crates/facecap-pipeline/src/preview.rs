@@ -20,11 +20,13 @@
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use facecap_core::camera::Intrinsics;
 use facecap_io::video::encode::{EncoderParams, FfmpegEncoder};
-use facecap_io::video::{open_source, Frame, FrameSelect, SourceOptions, MAX_SELECT_EXTRA};
+use facecap_io::video::small::{ColourTap, SmallFrame, StoredFrames};
+use facecap_io::video::{open_source, Frame, FrameSelect, FrameSource, SourceOptions, VideoInfo, MAX_SELECT_EXTRA};
 use image::{Rgb, RgbImage};
 use nalgebra::Point2;
 use rayon::prelude::*;
@@ -78,6 +80,105 @@ impl Default for PreviewParams {
             },
             video_fps: None,
         }
+    }
+}
+
+impl PreviewParams {
+    /// The preview shows every `stride`-th frame of a `fps` video (1 when `fps` is not
+    /// a positive number).
+    pub fn stride(&self, fps: f64) -> u64 {
+        if !(fps.is_finite() && fps > 0.0) {
+            return 1;
+        }
+        ((fps / self.max_fps).ceil() as u64).clamp(1, 240)
+    }
+
+    /// The colour copies the tracking pass can keep for this preview of a `width` x
+    /// `height`, `fps` video ([`FrameSource::tap_colour`]): the frames it shows and
+    /// `extra` (the report's stills), at the preview's frame size. `None` when `extra`
+    /// has more than [`MAX_SELECT_EXTRA`] frames.
+    pub fn colour_tap(&self, width: u32, height: u32, fps: f64, extra: Vec<u64>) -> Option<ColourTap> {
+        (extra.len() <= MAX_SELECT_EXTRA && width > 0 && height > 0).then(|| ColourTap {
+            size: PreviewLayout::new(width, height, self.max_height).frame,
+            select: FrameSelect {
+                stride: self.stride(fps),
+                extra,
+            },
+        })
+    }
+}
+
+/// Largest memory [`ColourFrames`] holds by default (bytes): about 2,700 frames of a
+/// 360x360 preview, three minutes of a 30 fps video.
+pub const COLOUR_FRAMES_BUDGET: usize = 512 << 20;
+
+/// A [`crate::Sink`] that keeps the small colour copies the tracking pass made
+/// ([`crate::TrackedFace::colour`]) so that the preview need not decode the video again
+/// ([`write_preview_stored`]). Past its memory budget it drops them all and the
+/// preview decodes the video as before.
+#[derive(Debug)]
+pub struct ColourFrames {
+    frames: Vec<(u64, f64, Arc<SmallFrame>)>,
+    bytes: usize,
+    budget: usize,
+    overflow: bool,
+}
+
+impl ColourFrames {
+    /// An empty store holding at most `budget` bytes.
+    pub fn new(budget: usize) -> Self {
+        ColourFrames {
+            frames: Vec::new(),
+            bytes: 0,
+            budget,
+            overflow: false,
+        }
+    }
+
+    /// Frames kept.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether none is kept.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Whether the budget was exceeded (then nothing is kept).
+    pub fn overflowed(&self) -> bool {
+        self.overflow
+    }
+
+    /// The kept frames as a source for [`write_preview_stored`] (`None` when there are
+    /// none or the budget was exceeded).
+    pub fn into_source(self, video: &Path, info: &VideoInfo) -> Option<StoredFrames> {
+        if self.overflow || self.frames.is_empty() {
+            return None;
+        }
+        StoredFrames::new(video, info, self.frames).ok()
+    }
+}
+
+impl crate::Sink for ColourFrames {
+    fn name(&self) -> &str {
+        "preview frames"
+    }
+
+    fn frame(&mut self, face: &crate::TrackedFace) -> Result<()> {
+        if self.overflow {
+            return Ok(());
+        }
+        if let Some(c) = &face.colour {
+            self.bytes += c.bytes();
+            if self.bytes > self.budget {
+                self.overflow = true;
+                self.frames = Vec::new();
+            } else {
+                self.frames.push((face.index, face.timestamp, Arc::clone(c)));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -362,6 +463,41 @@ pub fn write_preview(
     keep: &[u64],
     interrupted: Option<&AtomicBool>,
 ) -> Result<(PreviewReport, Vec<(u64, RgbImage)>)> {
+    write_preview_stored(
+        video,
+        None,
+        size,
+        frames,
+        names,
+        renderer,
+        camera,
+        out,
+        params,
+        keep,
+        interrupted,
+    )
+}
+
+/// [`write_preview`] from the colour copies the tracking pass kept ([`ColourFrames`])
+/// when `stored` is given, instead of decoding `video` again. Frames the preview shows
+/// that are not among them are shown dark, as frames the video could not give.
+///
+/// # Errors
+/// As [`write_preview`].
+#[allow(clippy::too_many_arguments)]
+pub fn write_preview_stored(
+    video: &Path,
+    stored: Option<StoredFrames>,
+    size: (u32, u32),
+    frames: &[SolvedFrame],
+    names: &[String],
+    renderer: &RigRenderer,
+    camera: &Intrinsics,
+    out: &Path,
+    params: &PreviewParams,
+    keep: &[u64],
+    interrupted: Option<&AtomicBool>,
+) -> Result<(PreviewReport, Vec<(u64, RgbImage)>)> {
     if !(64..=2160).contains(&params.max_height) {
         return Err(Error::invalid(
             "preview max_height",
@@ -377,7 +513,7 @@ pub fn write_preview(
     }
     let layout = PreviewLayout::new(size.0, size.1, params.max_height);
     // every `stride`-th frame, at the rate that keeps the clip's duration
-    let stride_of = |fps: f64| ((fps / params.max_fps).ceil() as usize).clamp(1, 240);
+    let stride_of = |fps: f64| params.stride(fps) as usize;
     // With the rate known beforehand, ffmpeg drops the frames the preview does not show
     // (neither on the stride nor kept) before scaling, converting and piping them.
     let known_fps = params.video_fps.filter(|f| f.is_finite() && *f > 0.0);
@@ -388,18 +524,21 @@ pub fn write_preview(
             extra: keep.to_vec(),
         })
         .filter(|s| s.stride > 1 || !s.extra.is_empty());
-    let mut source = open_source(
-        video,
-        &SourceOptions {
-            rgb: true,
-            threads: params.decode_threads,
-            scale: (layout.frame != size).then_some(layout.frame),
-            select,
-            // the tracking pass probed the video already
-            probe_frame_count: known_fps.is_none(),
-            ..SourceOptions::default()
-        },
-    )?;
+    let mut source: Box<dyn FrameSource> = match stored {
+        Some(s) => Box::new(s),
+        None => open_source(
+            video,
+            &SourceOptions {
+                rgb: true,
+                threads: params.decode_threads,
+                scale: (layout.frame != size).then_some(layout.frame),
+                select,
+                // the tracking pass probed the video already
+                probe_frame_count: known_fps.is_none(),
+                ..SourceOptions::default()
+            },
+        )?,
+    };
     let info = source.info().clone();
     if (info.width, info.height) != layout.frame && (info.width, info.height) != size {
         return Err(Error::invalid(

@@ -29,6 +29,9 @@ pub struct TrackedFace {
     /// when the mesh front end tracked the face and some sink asked for them
     /// ([`Sink::wants_mesh`]).
     pub mesh: Option<Arc<[[f32; 3]]>>,
+    /// A small colour copy of the frame, when the source was asked for one of this
+    /// frame ([`facecap_io::video::FrameSource::tap_colour`]; the preview's frames).
+    pub colour: Option<Arc<facecap_io::video::small::SmallFrame>>,
 }
 
 /// Which frames' grey images a sink needs.

@@ -637,7 +637,7 @@ impl VideoTracker {
                 let (mut busy, mut frames, mut faces) = (0.0, 0u64, 0u64);
                 let mut taken = vec![0usize; wants.len()];
                 for decoded in frame_rx {
-                    let frame = match decoded {
+                    let mut frame = match decoded {
                         Decoded::Frame(f) => f,
                         Decoded::Failed {
                             index,
@@ -656,6 +656,7 @@ impl VideoTracker {
                                 gray: None,
                                 iris: None,
                                 mesh: None,
+                                colour: None,
                             };
                             frames += 1;
                             if track_tx.send(Tracked { face, wanted: 0 }).is_err() {
@@ -704,6 +705,7 @@ impl VideoTracker {
                         gray: keep.then(|| Arc::new(frame.gray.clone())),
                         iris,
                         mesh,
+                        colour: frame.small.take().map(Arc::new),
                     };
                     let msg = Tracked { face, wanted };
                     frames += 1;
@@ -806,6 +808,7 @@ pub fn replay(records: &[LandmarkRecord], sinks: &mut [&mut dyn Sink]) -> Result
                 gray: None,
                 iris: None,
                 mesh: None,
+                colour: None,
             },
             wanted: 0,
         }),

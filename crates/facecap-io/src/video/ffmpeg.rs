@@ -437,6 +437,9 @@ pub struct FfmpegSource {
     decoded_size: (u32, u32),
     /// The frames ffmpeg passes on ([`SourceOptions::select`]).
     select: Option<super::FrameSelect>,
+    /// Small colour copies of chosen frames ([`FrameSource::tap_colour`]).
+    tap: Option<super::small::ColourTap>,
+    scaler: super::small::PlaneScaler,
 }
 
 /// Largest run of dropped frames reported one by one (a timestamp jump beyond it is a
@@ -559,6 +562,8 @@ impl FfmpegSource {
             done: false,
             decoded_size: (0, 0),
             select: opts.select.clone(),
+            tap: None,
+            scaler: super::small::PlaneScaler::default(),
         };
         // The frame count comes from ffprobe, started now so it runs while ffmpeg starts.
         let mut probe = ProbeGuard(if opts.probe_frame_count {
@@ -888,6 +893,23 @@ impl FfmpegSource {
             let (cb, cr) = self.chroma.split_at(self.chroma.len() / 2);
             self.conv.convert_into(frame.gray.as_raw(), cb, cr, w, h, 1, 1, rgb);
         }
+        // the small copy is made from the planes as decoded (before the luma table)
+        let reuse = frame.small.take();
+        if let Some(tap) = self.tap.as_ref().filter(|t| t.select.contains(k)) {
+            let (cb, cr) = self.chroma.split_at(self.chroma.len() / 2);
+            frame.small = Some(super::small::SmallFrame::from_planes(
+                frame.gray.as_raw(),
+                cb,
+                cr,
+                w,
+                h,
+                self.chroma_sub,
+                tap.size,
+                self.conv,
+                &mut self.scaler,
+                reuse,
+            )?);
+        }
         if let Some(lut) = &self.lut {
             apply_lut(&mut frame.gray, lut);
         }
@@ -914,6 +936,12 @@ impl FrameSource for FfmpegSource {
 
     fn path(&self) -> &Path {
         &self.path
+    }
+
+    fn tap_colour(&mut self, tap: super::small::ColourTap) -> Result<bool> {
+        tap.validate(self.info.width, self.info.height)?;
+        self.tap = Some(tap);
+        Ok(true)
     }
 
     fn read_into(&mut self, frame: &mut Frame) -> Result<bool> {

@@ -55,6 +55,7 @@ use facecap_core::error::{Error, Result};
 pub mod encode;
 pub mod ffmpeg;
 pub mod folder;
+pub mod small;
 pub mod y4m;
 pub mod yuv;
 
@@ -72,6 +73,9 @@ pub struct Frame {
     pub gray: GrayImage,
     /// 8-bit RGB image, present when [`SourceOptions::rgb`] was set.
     pub rgb: Option<RgbImage>,
+    /// A small colour copy, present on the frames a [`small::ColourTap`] selects
+    /// ([`FrameSource::tap_colour`]). Its buffer is reused when the frame is.
+    pub small: Option<small::SmallFrame>,
 }
 
 impl Default for Frame {
@@ -81,6 +85,7 @@ impl Default for Frame {
             timestamp_s: 0.0,
             gray: GrayImage::new(0, 0),
             rgb: None,
+            small: None,
         }
     }
 }
@@ -283,6 +288,18 @@ pub trait FrameSource: Send + Debug {
     /// [`Error::Decode`] (with the frame index) for damaged or inconsistent data,
     /// [`Error::Io`] for read failures, [`Error::Tool`] when ffmpeg fails to run.
     fn read_into(&mut self, frame: &mut Frame) -> Result<bool>;
+
+    /// Keeps a small colour copy ([`Frame::small`]) of the frames `tap` selects from
+    /// now on. Returns whether this source can (video files through ffmpeg can; the
+    /// others return `false` and deliver no copies).
+    ///
+    /// # Errors
+    /// [`Error::InvalidParameter`] when the tap does not fit the video
+    /// ([`small::ColourTap::validate`]).
+    fn tap_colour(&mut self, tap: small::ColourTap) -> Result<bool> {
+        tap.validate(self.info().width, self.info().height)?;
+        Ok(false)
+    }
 
     /// Allocating convenience form of [`FrameSource::read_into`].
     fn next_frame(&mut self) -> Result<Option<Frame>> {
