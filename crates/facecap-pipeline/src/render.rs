@@ -101,8 +101,9 @@ struct TriSetup {
     b0: f32,
     a1: f32,
     b1: f32,
-    /// Lit colours of the three vertices (0..255).
-    lit: [[f32; 3]; 3],
+    /// The Gouraud colour as a plane over the image: per channel (0..255) the value at
+    /// pixel (0, 0) and its slopes along x and y.
+    col: [[f32; 3]; 3],
 }
 
 /// A rig ready to render (module docs). `Send + Sync`: share one between threads, one
@@ -370,6 +371,8 @@ impl RigRenderer {
         // w1 = a1 dx + b1 dy), and each row visits only the span where all three can be
         // inside (the exact test is still made per pixel).
         const EPS: f32 = -1e-4;
+        // bounding box of the rows and columns pass 1 visited (pass 2 looks only there)
+        let mut covered = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
         for (k, t) in self.mesh.base.triangles.iter().enumerate() {
             let [a, b, c] = t.map(|i| i as usize);
             let fnrm = (ws.view[b] - ws.view[a]).cross(&(ws.view[c] - ws.view[a]));
@@ -397,14 +400,23 @@ impl RigRenderer {
                 continue;
             }
             let inv = 1.0 / area;
+            let (a0, b0) = ((p1[1] - p2[1]) * inv, (p2[0] - p1[0]) * inv);
+            let (a1, b1) = ((p2[1] - p0[1]) * inv, (p0[0] - p2[0]) * inv);
+            // colour = la w0 + lb w1 + lc w2 with w2 = 1 - w0 - w1: a plane in x, y
+            let (la, lb, lc) = (ws.lit[a], ws.lit[b], ws.lit[c]);
+            let col = [0, 1, 2].map(|ch| {
+                let (da, db) = (la[ch] - lc[ch], lb[ch] - lc[ch]);
+                let (gx, gy) = (da * a0 + db * a1, da * b0 + db * b1);
+                [la[ch] - gx * p0[0] - gy * p0[1], gx, gy]
+            });
             let su = TriSetup {
                 ox: p0[0],
                 oy: p0[1],
-                a0: (p1[1] - p2[1]) * inv,
-                b0: (p2[0] - p1[0]) * inv,
-                a1: (p2[1] - p0[1]) * inv,
-                b1: (p0[0] - p2[0]) * inv,
-                lit: [ws.lit[a], ws.lit[b], ws.lit[c]],
+                a0,
+                b0,
+                a1,
+                b1,
+                col,
             };
             ws.setup[k] = su;
             let (z0, z1, z2) = (p0[2] - p2[2], p1[2] - p2[2], p2[2]);
@@ -434,6 +446,7 @@ impl RigRenderer {
                 let x0 = (((lo + su.ox) as i64) - 1).max(minx);
                 let x1 = (((hi + su.ox) as i64) + 2).min(maxx);
                 let row = y as usize * w as usize;
+                covered = (covered.0.min(x0), covered.1.max(x1), covered.2.min(y), covered.3.max(y));
                 for x in x0..=x1 {
                     let dx = x as f32 - su.ox;
                     let w0 = c0 + su.a0 * dx;
@@ -451,33 +464,30 @@ impl RigRenderer {
                 }
             }
         }
-        // Pass 2: colour each covered pixel once.
+        // Pass 2: colour each covered pixel once, inside the box pass 1 visited.
+        if covered.0 > covered.1 || covered.2 > covered.3 {
+            return Ok(());
+        }
         let stride = w as usize;
+        let (cx0, cx1) = (covered.0 as usize, covered.1 as usize);
         let raw: &mut [u8] = img;
-        for (y, (ids, row)) in ws
-            .id
-            .chunks_exact(stride)
-            .zip(raw.chunks_exact_mut(3 * stride))
-            .enumerate()
-        {
+        for y in covered.2 as usize..=covered.3 as usize {
             let fy = y as f32;
-            for (x, (&k, px)) in ids.iter().zip(row.chunks_exact_mut(3)).enumerate() {
+            let ids = &ws.id[y * stride + cx0..=y * stride + cx1];
+            let row = &mut raw[3 * (y * stride + cx0)..3 * (y * stride + cx1 + 1)];
+            for (x, (&k, px)) in (cx0..).zip(ids.iter().zip(row.chunks_exact_mut(3))) {
                 if k == u32::MAX {
                     continue;
                 }
-                let su = &ws.setup[k as usize];
-                let (dx, dy) = (x as f32 - su.ox, fy - su.oy);
-                let w0 = (1.0 + su.a0 * dx + su.b0 * dy).clamp(0.0, 1.0);
-                let w1 = (su.a1 * dx + su.b1 * dy).clamp(0.0, 1.0);
-                let w2 = (1.0 - w0 - w1).max(0.0);
-                let [la, lb, lc] = &su.lit;
-                for ch in 0..3 {
-                    let v = la[ch] * w0 + lb[ch] * w1 + lc[ch] * w2;
-                    // non-negative: +0.5 and truncation round to nearest
-                    px[ch] = if alpha == 1.0 {
+                let col = &ws.setup[k as usize].col;
+                let fx = x as f32;
+                for (p, c) in px.iter_mut().zip(col) {
+                    let v = c[0] + c[1] * fx + c[2] * fy;
+                    // +0.5 and the saturating cast round to nearest within 0..=255
+                    *p = if alpha == 1.0 {
                         (v + 0.5) as u8
                     } else {
-                        (alpha * v + (1.0 - alpha) * f32::from(px[ch]) + 0.5) as u8
+                        (alpha * v + (1.0 - alpha) * f32::from(*p) + 0.5) as u8
                     };
                 }
             }
