@@ -244,7 +244,9 @@ impl PlaneScaler {
         let kx = self.axis(from.0, to.0);
         let mut row = std::mem::take(&mut self.rows);
         row.clear();
-        row.resize(sw, 0.0);
+        // padded so that every output reads a whole set of taps (the padding's weights
+        // are 0)
+        row.resize(sw + self.axes[kx].taps, 0.0);
         let (ay, ax) = (&self.axes[ky], &self.axes[kx]);
         for (oy, out) in dst.chunks_exact_mut(dw).enumerate() {
             // vertical: a weighted sum of the input rows (vectorises over the row)
@@ -260,15 +262,36 @@ impl PlaneScaler {
                 }
             }
             // horizontal
-            for (ox, o) in out.iter_mut().enumerate() {
-                let first = ax.start[ox];
-                let ws = &ax.weights[ox * ax.taps..(ox + 1) * ax.taps];
-                let end = (first + ax.taps).min(sw);
-                let v: f32 = row[first..end].iter().zip(ws).map(|(a, b)| a * b).sum();
-                *o = (v + 0.5).clamp(0.0, 255.0) as u8;
+            match ax.taps {
+                3 => horizontal::<3>(&row, ax, out),
+                4 => horizontal::<4>(&row, ax, out),
+                5 => horizontal::<5>(&row, ax, out),
+                6 => horizontal::<6>(&row, ax, out),
+                _ => {
+                    for (ox, o) in out.iter_mut().enumerate() {
+                        let first = ax.start[ox];
+                        let ws = &ax.weights[ox * ax.taps..(ox + 1) * ax.taps];
+                        let v: f32 = row[first..first + ax.taps].iter().zip(ws).map(|(a, b)| a * b).sum();
+                        *o = (v + 0.5).clamp(0.0, 255.0) as u8;
+                    }
+                }
             }
         }
         self.rows = row;
+    }
+}
+
+/// The horizontal pass with `N` taps per output (a fixed count the compiler unrolls).
+fn horizontal<const N: usize>(row: &[f32], ax: &AxisTaps, out: &mut [u8]) {
+    for ((o, &first), ws) in out.iter_mut().zip(&ax.start).zip(ax.weights.chunks_exact(N)) {
+        let Some(src) = row.get(first..first + N) else {
+            continue;
+        };
+        let mut v = 0.5;
+        for k in 0..N {
+            v += src[k] * ws[k];
+        }
+        *o = v.clamp(0.0, 255.0) as u8;
     }
 }
 

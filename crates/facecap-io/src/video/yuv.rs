@@ -139,6 +139,24 @@ impl YuvToRgb {
             }
             return;
         }
+        let chroma_420 = cw * (height as usize).div_ceil(2);
+        if (sx, sy) == (2, 2) && cb.len() >= chroma_420 && cr.len() >= chroma_420 {
+            // 4:2:0: each chroma sample covers a pair of pixels on two rows
+            for (row, (yrow, orow)) in y.chunks_exact(w).zip(out.chunks_exact_mut(3 * w)).enumerate() {
+                let crow = (row >> 1) * cw;
+                let (cbr, crr) = (&cb[crow..crow + cw], &cr[crow..crow + cw]);
+                let pairs = yrow.chunks_exact(2).zip(orow.chunks_exact_mut(6));
+                for (((yv, o), u), v) in pairs.zip(cbr).zip(crr) {
+                    o[..3].copy_from_slice(&self.pixel(yv[0], *u, *v));
+                    o[3..].copy_from_slice(&self.pixel(yv[1], *u, *v));
+                }
+                if w % 2 == 1 {
+                    let (u, v) = (cbr[cw - 1], crr[cw - 1]);
+                    orow[3 * (w - 1)..].copy_from_slice(&self.pixel(yrow[w - 1], u, v));
+                }
+            }
+            return;
+        }
         for (row, (yrow, orow)) in y.chunks_exact(w).zip(out.chunks_exact_mut(3 * w)).enumerate() {
             let crow = (row / sy) * cw;
             for (col, (yv, o)) in yrow.iter().zip(orow.chunks_exact_mut(3)).enumerate() {
@@ -179,5 +197,23 @@ mod tests {
         assert_eq!(l[235], 255);
         assert_eq!(l[255], 255);
         assert_eq!(l[126], 128);
+    }
+
+    #[test]
+    fn planes_420_convert_like_pixel_by_pixel_at_odd_and_even_widths() {
+        let c = YuvToRgb::new(ColorMatrix::Bt709, ColorRange::Limited);
+        for (w, h) in [(6u32, 4u32), (7, 5), (1, 1)] {
+            let (cw, ch) = (w.div_ceil(2) as usize, h.div_ceil(2) as usize);
+            let y: Vec<u8> = (0..w * h).map(|i| (i * 37 % 256) as u8).collect();
+            let cb: Vec<u8> = (0..cw * ch).map(|i| (i * 53 % 256) as u8).collect();
+            let cr: Vec<u8> = (0..cw * ch).map(|i| (255 - i * 29 % 256) as u8).collect();
+            let mut out = RgbImage::new(1, 1);
+            c.convert_into(&y, &cb, &cr, w, h, 2, 2, &mut out);
+            for (row, col) in (0..h).flat_map(|r| (0..w).map(move |c| (r, c))) {
+                let ci = (row as usize / 2) * cw + col as usize / 2;
+                let want = c.pixel(y[(row * w + col) as usize], cb[ci], cr[ci]);
+                assert_eq!(out.get_pixel(col, row).0, want, "{w}x{h} at ({col}, {row})");
+            }
+        }
     }
 }
