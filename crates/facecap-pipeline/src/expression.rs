@@ -223,8 +223,8 @@ pub struct ExpressionSink<'a> {
     /// The solver's weights of the last solved frame (without the gaze shapes' values).
     prev_solver_weights: Vec<f64>,
     gaze: Gaze,
-    /// The rig's `eyeBlink*` shapes (see [`BLINK_GAIN`]).
-    blink_idx: Vec<usize>,
+    /// The rig's `eyeBlink*` shapes and their sides (see [`blink_weight`]).
+    blink_idx: Vec<(usize, Option<char>)>,
     /// Neutral calibration on the fly (live input), see [`ExpressionSink::with_live_neutral`].
     live: Option<LiveNeutralState>,
 }
@@ -283,9 +283,40 @@ struct Gaze {
 
 /// Gain on the solved `eyeBlink*` weights. dlib's 68 points never close an eye: on the
 /// shared clips a visibly closed eye keeps 30-55 % of its resting eye aspect ratio (d9:
-/// 0.08-0.15 against 0.28 at rest), so the solve reaches about 0.55 of a rig's full closure
-/// there. The gain maps that to 1 (docs/expressions.md, "Eyes").
+/// 0.08-0.15 against 0.28 at rest), so the solve reaches about 0.55 of a rig's full
+/// closure there. The gain maps that to 1 (docs/expressions.md, "Eyes").
 pub const BLINK_GAIN: f64 = 1.8;
+
+/// How much a plainly visible iris damps `eyeBlink*`: the weight is multiplied by
+/// `1 - BLINK_IRIS_DAMPING * clamp((c - BLINK_IRIS_FROM) / (1 - BLINK_IRIS_FROM), 0, 1)`,
+/// with `c` the eye's iris confidence in [0, 1]
+/// ([`facecap_landmarks::gaze::EyeEstimate::confidence`]: 1 for an open eye whose dark
+/// iris stands out, 0 for a closed eye or no estimate). A downward glance lowers the
+/// upper lid by about a quarter of the eye's opening and the solve reads it as half a
+/// blink, but the iris stays in plain view (confidence 1 on liveportrait_d6's glances);
+/// in a blink it fades (0.4-0.7 at the peak of d9's blinks, 0 when the lids meet).
+/// docs/expressions.md, "Eyes".
+pub const BLINK_IRIS_DAMPING: f64 = 0.8;
+
+/// Iris confidence below which `eyeBlink*` is not damped (see [`BLINK_IRIS_DAMPING`]).
+pub const BLINK_IRIS_FROM: f64 = 0.5;
+
+/// `eyeBlink*` after the gain and the iris damping (see [`BLINK_GAIN`],
+/// [`BLINK_IRIS_DAMPING`]); an `iris_confidence` that is NaN counts as 0 (no estimate).
+pub fn blink_weight(solved: f64, iris_confidence: f64) -> f64 {
+    let c = if iris_confidence.is_finite() {
+        iris_confidence
+    } else {
+        0.0
+    };
+    let visible = ((c - BLINK_IRIS_FROM) / (1.0 - BLINK_IRIS_FROM)).clamp(0.0, 1.0);
+    let w = solved * BLINK_GAIN * (1.0 - BLINK_IRIS_DAMPING * visible);
+    if w.is_finite() {
+        w.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
 
 /// Iris estimates kept for the running resting gaze, at most.
 const GAZE_SEEN_MAX: usize = 100_000;
@@ -398,8 +429,10 @@ impl<'a> ExpressionSink<'a> {
                 .names
                 .iter()
                 .enumerate()
-                .filter(|(_, n)| facecap_solve::observability::split_side(n).0 == "eyeBlink")
-                .map(|(k, _)| k)
+                .filter_map(|(k, n)| {
+                    let (base, side) = facecap_solve::observability::split_side(n);
+                    (base == "eyeBlink").then_some((k, side))
+                })
                 .collect(),
             live: None,
         })
@@ -592,8 +625,13 @@ impl<'a> ExpressionSink<'a> {
                     }
                     out.weights.copy_from_slice(&solution.weights);
                     self.gaze.apply(face.iris.as_ref(), &mut out.weights);
-                    for &k in &self.blink_idx {
-                        out.weights[k] = (out.weights[k] * BLINK_GAIN).min(1.0);
+                    for &(k, side) in &self.blink_idx {
+                        let c = face.iris.as_ref().map_or(0.0, |i| match side {
+                            Some('L') => i.left.confidence,
+                            Some('R') => i.right.confidence,
+                            _ => 0.5 * (i.left.confidence + i.right.confidence),
+                        });
+                        out.weights[k] = blink_weight(out.weights[k], c);
                     }
                     self.prev_solver_weights.copy_from_slice(&solution.weights);
                     out.reprojection_px = solution.reprojection_error(l);
@@ -774,7 +812,8 @@ impl Sink for ExpressionSink<'_> {
     }
 
     fn wants_iris(&self) -> bool {
-        self.gaze.active()
+        // the gaze shapes, and the iris damping of eyeBlink
+        self.gaze.active() || !self.blink_idx.is_empty()
     }
 
     fn wants_mesh(&self) -> bool {
@@ -829,5 +868,26 @@ impl Sink for ExpressionSink<'_> {
         }
         self.solving = Some(sv);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blink_weight_is_damped_only_where_the_iris_is_plainly_visible() {
+        // no estimate or a closed eye: the gain alone
+        assert!((blink_weight(0.3, 0.0) - 0.3 * BLINK_GAIN).abs() < 1e-12);
+        assert_eq!(blink_weight(0.3, BLINK_IRIS_FROM), blink_weight(0.3, 0.0));
+        assert_eq!(blink_weight(0.3, f64::NAN), blink_weight(0.3, 0.0));
+        // a glance: half a blink in the solve, iris in full view -> well below 0.5
+        assert!(blink_weight(0.3, 1.0) < 0.2);
+        // a closed eye stays closed, and the result is a weight
+        assert_eq!(blink_weight(0.9, 0.0), 1.0);
+        assert_eq!(blink_weight(-0.1, 0.0), 0.0);
+        assert_eq!(blink_weight(f64::NAN, 0.2), 0.0);
+        // more iris, less blink
+        assert!(blink_weight(0.4, 0.9) < blink_weight(0.4, 0.7));
     }
 }
