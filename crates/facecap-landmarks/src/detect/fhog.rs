@@ -400,10 +400,13 @@ impl pulp::WithSimd for HistV3<'_> {
             // the votes, in raster order
             let row0 = &mut scratch.hist[hy * hist_w * 18..(hy + 2) * hist_w * 18];
             let (r_top, r_bot) = row0.split_at_mut(hist_w * 18);
-            for x in 1..vis_w {
-                let o = usize::from(table.bins[idx[x] as usize]);
-                let at = scratch.col_ix[x] * 18 + o;
-                let [v11, v01, v10, v00] = votes[x];
+            let bins = &table.bins[..];
+            for ((&hx, &i), &[v11, v01, v10, v00]) in scratch.col_ix[1..vis_w]
+                .iter()
+                .zip(&idx[1..vis_w])
+                .zip(&votes[1..vis_w])
+            {
+                let at = hx * 18 + usize::from(bins[i as usize]);
                 r_top[at] += v11;
                 r_bot[at] += v01;
                 r_top[at + 18] += v10;

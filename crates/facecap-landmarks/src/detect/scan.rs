@@ -442,14 +442,13 @@ impl pulp::WithSimd for FastV3<'_> {
         let span = V3_LANES + TAPS - 1;
         let zero = v3.splat_f32x8(0.0);
         let blocks = nc.div_ceil(V3_LANES);
-        let rows = nonzero_rows(feats);
+        let live_rows = nonzero_rows(feats);
         for term in &bank.terms {
             let plane = feats.plane(term.plane);
             let fr: [pulp::f32x8; TAPS] = std::array::from_fn(|k| v3.splat_f32x8(term.row[k]));
-            let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
             // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k], only on the
             // rows that are not entirely zero (the fHOG padding rows give zeros)
-            let (y0, y1) = rows[term.plane];
+            let (y0, y1) = live_rows[term.plane];
             rowpass[..y0 * stride].fill(0.0);
             rowpass[y1 * stride..].fill(0.0);
             for y in y0..y1 {
@@ -473,8 +472,33 @@ impl pulp::WithSimd for FastV3<'_> {
                     b += 2;
                 }
             }
-            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
-            for r in 0..nr {
+            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j], two output
+            // rows at a time (they share nine input rows; the taps are splat only here
+            // so that they stay in registers)
+            let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
+            let mut r = 0;
+            while r + 1 < nr {
+                let top = area.r0 + r - hr;
+                let rows = &rowpass[top * stride..(top + TAPS + 1) * stride];
+                let (o0, o1) = out[r * stride..(r + 2) * stride].split_at_mut(stride);
+                for j in (0..stride).step_by(V3_LANES) {
+                    let mut acc0 = ld8(o0, j);
+                    let mut acc1 = ld8(o1, j);
+                    let x = ld8(rows, j);
+                    acc0 = v3.mul_add_f32x8(x, fc[0], acc0);
+                    for m in 1..TAPS {
+                        let x = ld8(rows, m * stride + j);
+                        acc0 = v3.mul_add_f32x8(x, fc[m], acc0);
+                        acc1 = v3.mul_add_f32x8(x, fc[m - 1], acc1);
+                    }
+                    let x = ld8(rows, TAPS * stride + j);
+                    acc1 = v3.mul_add_f32x8(x, fc[TAPS - 1], acc1);
+                    st8(o0, j, acc0);
+                    st8(o1, j, acc1);
+                }
+                r += 2;
+            }
+            if r < nr {
                 let top = area.r0 + r - hr;
                 let rows = &rowpass[top * stride..(top + TAPS) * stride];
                 let o = &mut out[r * stride..(r + 1) * stride];
