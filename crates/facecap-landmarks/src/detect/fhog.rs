@@ -244,7 +244,7 @@ pub(crate) fn extract(
                     scratch,
                 },
             );
-            finish(g, fw, fh, scratch, out);
+            finish(g, fw, fh, scratch, out, true);
             return;
         }
     }
@@ -279,7 +279,7 @@ pub(crate) fn extract(
         }
     }
 
-    finish(g, fw, fh, scratch, out);
+    finish(g, fw, fh, scratch, out, true);
 }
 
 /// Vertical bilinear weights `(vy0, vy1)` of pixel row `y` and the histogram row of
@@ -417,8 +417,8 @@ impl pulp::WithSimd for HistV3<'_> {
 }
 
 /// Energies, normalisation and output planes (shared by the fast and the reference
-/// extractor).
-fn finish(g: FhogGeometry, fw: usize, fh: usize, scratch: &mut FhogScratch, out: &mut FhogImage) {
+/// extractor; `vector`: the AVX2 feature pass where available, else scalar code).
+fn finish(g: FhogGeometry, fw: usize, fh: usize, scratch: &mut FhogScratch, out: &mut FhogImage, vector: bool) {
     let hist_w = g.cells_w + 2;
     let hist = &scratch.hist;
     let norm = &mut scratch.norm;
@@ -446,45 +446,199 @@ fn finish(g: FhogGeometry, fw: usize, fh: usize, scratch: &mut FhogScratch, out:
     let off_r = (fh - 1) / 2;
     let off_c = (fw - 1) / 2;
     let cw = g.cells_w;
+    let geo = FeatureGeometry {
+        hist_w,
+        cw,
+        pw,
+        plane,
+        off_r,
+        off_c,
+    };
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v3) = pulp::x86::V3::try_new().filter(|_| vector) {
+        pulp::Simd::vectorize(
+            v3,
+            FeaturesV3 {
+                v3,
+                g,
+                geo,
+                hist,
+                norm,
+                out: &mut out.data,
+            },
+        );
+        return;
+    }
+    let _ = vector;
     for y in 0..g.hog_h {
-        let yy = y + off_r;
         for x in 0..g.hog_w {
-            let nrm = |r: usize, c: usize| norm[r * cw + c];
-            // dlib's 4 lanes: blocks below-right, above-right, below-left, above-left
-            let s = [
-                nrm(y + 1, x + 1) + nrm(y + 1, x + 2) + nrm(y + 2, x + 1) + nrm(y + 2, x + 2) + EPS,
-                nrm(y, x + 1) + nrm(y, x + 2) + nrm(y + 1, x + 1) + nrm(y + 1, x + 2) + EPS,
-                nrm(y + 1, x) + nrm(y + 1, x + 1) + nrm(y + 2, x) + nrm(y + 2, x + 1) + EPS,
-                nrm(y, x) + nrm(y, x + 1) + nrm(y + 1, x) + nrm(y + 1, x + 1) + EPS,
-            ];
-            let nn = s.map(|v| TRUNC * v.sqrt());
-            let n = nn.map(|v| NORM_SCALE / v);
-            let h = &hist[((y + 2) * hist_w + x + 2) * 18..((y + 2) * hist_w + x + 3) * 18];
-            let xx = x + off_c;
-            let idx = yy * pw + xx;
-            let mut t = [0f32; 4];
-            for o in (0..18).step_by(3) {
-                let mut sums = [[0f32; 4]; 3];
-                for (k, s3) in sums.iter_mut().enumerate() {
-                    for j in 0..4 {
-                        s3[j] = h[o + k].min(nn[j]) * n[j];
-                    }
-                    out.data[(o + k) * plane + idx] = (s3[0] + s3[1]) + (s3[2] + s3[3]);
-                }
-                for j in 0..4 {
-                    t[j] += sums[0][j] + sums[1][j] + sums[2][j];
-                }
-            }
-            for o in 0..9 {
-                let hv = h[o] + h[o + 9];
-                let mut s4 = [0f32; 4];
-                for j in 0..4 {
-                    s4[j] = hv.min(nn[j]) * n[j];
-                }
-                out.data[(18 + o) * plane + idx] = (s4[0] + s4[1]) + (s4[2] + s4[3]);
-            }
+            cell_features(&geo, hist, norm, &mut out.data, y, x);
+        }
+    }
+}
+
+/// Strides and offsets of the feature computation.
+#[derive(Debug, Clone, Copy)]
+struct FeatureGeometry {
+    hist_w: usize,
+    cw: usize,
+    pw: usize,
+    plane: usize,
+    off_r: usize,
+    off_c: usize,
+}
+
+/// The 31 features of output cell `(y, x)`.
+#[inline(always)]
+fn cell_features(geo: &FeatureGeometry, hist: &[f32], norm: &[f32], out: &mut [f32], y: usize, x: usize) {
+    let FeatureGeometry {
+        hist_w,
+        cw,
+        pw,
+        plane,
+        off_r,
+        off_c,
+    } = *geo;
+    let yy = y + off_r;
+    let nrm = |r: usize, c: usize| norm[r * cw + c];
+    // dlib's 4 lanes: blocks below-right, above-right, below-left, above-left
+    let s = [
+        nrm(y + 1, x + 1) + nrm(y + 1, x + 2) + nrm(y + 2, x + 1) + nrm(y + 2, x + 2) + EPS,
+        nrm(y, x + 1) + nrm(y, x + 2) + nrm(y + 1, x + 1) + nrm(y + 1, x + 2) + EPS,
+        nrm(y + 1, x) + nrm(y + 1, x + 1) + nrm(y + 2, x) + nrm(y + 2, x + 1) + EPS,
+        nrm(y, x) + nrm(y, x + 1) + nrm(y + 1, x) + nrm(y + 1, x + 1) + EPS,
+    ];
+    let nn = s.map(|v| TRUNC * v.sqrt());
+    let n = nn.map(|v| NORM_SCALE / v);
+    let h = &hist[((y + 2) * hist_w + x + 2) * 18..((y + 2) * hist_w + x + 3) * 18];
+    let xx = x + off_c;
+    let idx = yy * pw + xx;
+    let mut t = [0f32; 4];
+    for o in (0..18).step_by(3) {
+        let mut sums = [[0f32; 4]; 3];
+        for (k, s3) in sums.iter_mut().enumerate() {
             for j in 0..4 {
-                out.data[(27 + j) * plane + idx] = t[j] * TEXTURE_SCALE;
+                s3[j] = h[o + k].min(nn[j]) * n[j];
+            }
+            out[(o + k) * plane + idx] = (s3[0] + s3[1]) + (s3[2] + s3[3]);
+        }
+        for j in 0..4 {
+            t[j] += sums[0][j] + sums[1][j] + sums[2][j];
+        }
+    }
+    for o in 0..9 {
+        let hv = h[o] + h[o + 9];
+        let mut s4 = [0f32; 4];
+        for j in 0..4 {
+            s4[j] = hv.min(nn[j]) * n[j];
+        }
+        out[(18 + o) * plane + idx] = (s4[0] + s4[1]) + (s4[2] + s4[3]);
+    }
+    for j in 0..4 {
+        out[(27 + j) * plane + idx] = t[j] * TEXTURE_SCALE;
+    }
+}
+
+/// The features of 8 neighbouring cells of a row at a time on AVX2 (one lane per
+/// cell, stored contiguously into each plane), with the operations of
+/// [`cell_features`] in the same order, so bit-identical; the last cells of a row
+/// one at a time.
+#[cfg(target_arch = "x86_64")]
+struct FeaturesV3<'a> {
+    v3: pulp::x86::V3,
+    g: FhogGeometry,
+    geo: FeatureGeometry,
+    hist: &'a [f32],
+    norm: &'a [f32],
+    out: &'a mut [f32],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl pulp::WithSimd for FeaturesV3<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        use pulp::Simd as _;
+        let FeaturesV3 {
+            v3,
+            g,
+            geo,
+            hist,
+            norm,
+            out,
+        } = self;
+        let FeatureGeometry {
+            hist_w,
+            cw,
+            pw,
+            plane,
+            off_r,
+            off_c,
+        } = geo;
+        let blocks = g.hog_w / V3_LANES;
+        let eps = v3.splat_f32x8(EPS);
+        let trunc = v3.splat_f32x8(TRUNC);
+        let scale = v3.splat_f32x8(NORM_SCALE);
+        let texture = v3.splat_f32x8(TEXTURE_SCALE);
+        let st = |out: &mut [f32], at: usize, v: pulp::f32x8| {
+            let a: [f32; V3_LANES] = bytemuck::cast(v);
+            out[at..at + V3_LANES].copy_from_slice(&a);
+        };
+        for y in 0..g.hog_h {
+            let yy = y + off_r;
+            for b in 0..blocks {
+                let x = b * V3_LANES;
+                let nrm = |r: usize, c: usize| ld8_f32(norm, r * cw + c);
+                let add4 = |a, b2, c, d| v3.add_f32s(v3.add_f32s(v3.add_f32s(v3.add_f32s(a, b2), c), d), eps);
+                let s = [
+                    add4(
+                        nrm(y + 1, x + 1),
+                        nrm(y + 1, x + 2),
+                        nrm(y + 2, x + 1),
+                        nrm(y + 2, x + 2),
+                    ),
+                    add4(nrm(y, x + 1), nrm(y, x + 2), nrm(y + 1, x + 1), nrm(y + 1, x + 2)),
+                    add4(nrm(y + 1, x), nrm(y + 1, x + 1), nrm(y + 2, x), nrm(y + 2, x + 1)),
+                    add4(nrm(y, x), nrm(y, x + 1), nrm(y + 1, x), nrm(y + 1, x + 1)),
+                ];
+                let nn = s.map(|v| v3.mul_f32s(trunc, v3.sqrt_f32x8(v)));
+                let n = nn.map(|v| v3.div_f32s(scale, v));
+                let h0 = ((y + 2) * hist_w + x + 2) * 18;
+                let hv = |o: usize| -> pulp::f32x8 {
+                    bytemuck::cast::<[f32; 8], _>(std::array::from_fn(|k| hist[h0 + k * 18 + o]))
+                };
+                let feat = |h: pulp::f32x8| -> ([pulp::f32x8; 4], pulp::f32x8) {
+                    let m: [pulp::f32x8; 4] = std::array::from_fn(|j| v3.mul_f32s(v3.min_f32s(h, nn[j]), n[j]));
+                    (m, v3.add_f32s(v3.add_f32s(m[0], m[1]), v3.add_f32s(m[2], m[3])))
+                };
+                let idx = yy * pw + x + off_c;
+                let mut t = [v3.splat_f32x8(0.0); 4];
+                let mut h = [v3.splat_f32x8(0.0); 18];
+                for (o, ho) in h.iter_mut().enumerate() {
+                    *ho = hv(o);
+                }
+                for o in (0..18).step_by(3) {
+                    let (m0, f0) = feat(h[o]);
+                    let (m1, f1) = feat(h[o + 1]);
+                    let (m2, f2) = feat(h[o + 2]);
+                    st(out, o * plane + idx, f0);
+                    st(out, (o + 1) * plane + idx, f1);
+                    st(out, (o + 2) * plane + idx, f2);
+                    for j in 0..4 {
+                        t[j] = v3.add_f32s(t[j], v3.add_f32s(v3.add_f32s(m0[j], m1[j]), m2[j]));
+                    }
+                }
+                for o in 0..9 {
+                    let (_, f) = feat(v3.add_f32s(h[o], h[o + 9]));
+                    st(out, (18 + o) * plane + idx, f);
+                }
+                for j in 0..4 {
+                    st(out, (27 + j) * plane + idx, v3.mul_f32s(t[j], texture));
+                }
+            }
+            for x in blocks * V3_LANES..g.hog_w {
+                cell_features(&geo, hist, norm, out, y, x);
             }
         }
     }
@@ -548,7 +702,7 @@ pub fn extract_reference(img: &[u8], width: usize, height: usize, cell: usize, f
             x += 1;
         }
     }
-    finish(g, fw, fh, &mut scratch, &mut out);
+    finish(g, fw, fh, &mut scratch, &mut out, false);
     out
 }
 

@@ -398,10 +398,11 @@ impl pulp::WithSimd for ResizeV3<'_, '_> {
                 let up = v3.cmp_ge_f32x8(v3.sub_f32s(v, t), half);
                 let rounded = v3.add_f32s(t, v3.select_f32x8(up, one, zero));
                 let rounded = v3.min_f32s(v3.max_f32s(rounded, zero), top_val);
-                let ints: [i32; V3_LANES] = pulp::cast(v3.convert_f32x8_to_i32x8(rounded));
-                for k in 0..V3_LANES {
-                    orow[c + k] = ints[k] as u8;
-                }
+                // 0..=255 integers: two unsigned-saturating packs give the 8 bytes
+                let [lo, hi]: [core::arch::x86_64::__m128i; 2] = pulp::cast(v3.convert_f32x8_to_i32x8(rounded));
+                let words = v3.sse4_1._mm_packus_epi32(lo, hi);
+                let bytes: [u8; 16] = pulp::cast(v3.sse2._mm_packus_epi16(words, words));
+                orow[c..c + V3_LANES].copy_from_slice(&bytes[..V3_LANES]);
             }
             // SIMD-part columns past the last whole block of 8
             for c in n_blocks * V3_LANES..c_end {
