@@ -352,65 +352,110 @@ impl pulp::WithSimd for HistV3<'_> {
         let hist_w = g.cells_w + 2;
         let vis_w = g.visible_w;
         scratch.row_idx.clear();
-        scratch.row_idx.resize(vis_w, 0);
+        scratch.row_idx.resize(2 * vis_w, 0);
         scratch.row_votes.clear();
-        scratch.row_votes.resize(vis_w, [0.0; 4]);
+        scratch.row_votes.resize(2 * vis_w, [0.0; 4]);
+        if g.visible_h < 2 {
+            return;
+        }
         let side = BinTable::SIDE as i32;
         let c255 = v3.splat_i32x8(255);
         let cside = v3.splat_i32x8(side);
-        for y in 1..g.visible_h {
-            let (vy0, vy1, hy) = row_weights(y, cell);
-            let up = &img[(y - 1) * width..y * width];
-            let mid = &img[y * width..(y + 1) * width];
-            let dn = &img[(y + 1) * width..(y + 2) * width];
-            let idx = &mut scratch.row_idx[..];
-            let votes = &mut scratch.row_votes[..];
-            let (w0, w1) = (&scratch.col_w0[..], &scratch.col_w1[..]);
-            let (svy0, svy1) = (v3.splat_f32x8(vy0), v3.splat_f32x8(vy1));
-            // dlib's 8-pixel blocks
-            let mut x = 1;
-            while x < simd_end {
-                let gx = v3.sub_i32s(ld8_u8(v3, mid, x + 1), ld8_u8(v3, mid, x - 1));
-                let gy = v3.sub_i32s(ld8_u8(v3, dn, x), ld8_u8(v3, up, x));
-                let m2 = v3.add_i32s(v3.mul_i32s(gx, gx), v3.mul_i32s(gy, gy));
-                let v = v3.sqrt_f32x8(v3.convert_i32x8_to_f32x8(m2));
-                let ti = v3.add_i32s(v3.mul_i32s(v3.add_i32s(gy, c255), cside), v3.add_i32s(gx, c255));
-                let ti: [u32; V3_LANES] = bytemuck::cast(ti);
-                idx[x..x + V3_LANES].copy_from_slice(&ti);
-                let a1 = v3.mul_f32s(ld8_f32(w1, x), v);
-                let a0 = v3.mul_f32s(ld8_f32(w0, x), v);
-                let v11: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy1, a1));
-                let v01: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy0, a1));
-                let v10: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy1, a0));
-                let v00: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy0, a0));
-                for k in 0..V3_LANES {
-                    votes[x + k] = [v11[k], v01[k], v10[k], v00[k]];
+        // The scatter runs two streams of pixels interleaved (two chains of dependent
+        // additions instead of one): at step `t` the left part (pixels `1..m`) of row
+        // `t` and the right part (`m..`) of row `t - 1`. Only the one or two cells
+        // around pixel `m` get votes from both parts (right pixels up to `m + 16`, left
+        // pixels from `m - 17`); the right stream reaches them within its first 17
+        // pixels, the left stream after `m - 18` pixels, so with `m >= 48` every bin
+        // still receives its votes in raster order (left of row t - 1, right of row
+        // t - 1, left of row t, ...).
+        let m = if vis_w >= 96 { vis_w / 2 } else { vis_w };
+        let row_len = hist_w * 18;
+        for t in 1..=g.visible_h {
+            if t < g.visible_h {
+                let y = t;
+                let (vy0, vy1, _) = row_weights(y, cell);
+                let up = &img[(y - 1) * width..y * width];
+                let mid = &img[y * width..(y + 1) * width];
+                let dn = &img[(y + 1) * width..(y + 2) * width];
+                let half = (y & 1) * vis_w;
+                let idx = &mut scratch.row_idx[half..half + vis_w];
+                let votes = &mut scratch.row_votes[half..half + vis_w];
+                let (w0, w1) = (&scratch.col_w0[..], &scratch.col_w1[..]);
+                let (svy0, svy1) = (v3.splat_f32x8(vy0), v3.splat_f32x8(vy1));
+                // dlib's 8-pixel blocks
+                let mut x = 1;
+                while x < simd_end {
+                    let gx = v3.sub_i32s(ld8_u8(v3, mid, x + 1), ld8_u8(v3, mid, x - 1));
+                    let gy = v3.sub_i32s(ld8_u8(v3, dn, x), ld8_u8(v3, up, x));
+                    let m2 = v3.add_i32s(v3.mul_i32s(gx, gx), v3.mul_i32s(gy, gy));
+                    let v = v3.sqrt_f32x8(v3.convert_i32x8_to_f32x8(m2));
+                    let ti = v3.add_i32s(v3.mul_i32s(v3.add_i32s(gy, c255), cside), v3.add_i32s(gx, c255));
+                    let ti: [u32; V3_LANES] = bytemuck::cast(ti);
+                    idx[x..x + V3_LANES].copy_from_slice(&ti);
+                    let a1 = v3.mul_f32s(ld8_f32(w1, x), v);
+                    let a0 = v3.mul_f32s(ld8_f32(w0, x), v);
+                    let v11: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy1, a1));
+                    let v01: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy0, a1));
+                    let v10: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy1, a0));
+                    let v00: [f32; V3_LANES] = bytemuck::cast(v3.mul_f32s(svy0, a0));
+                    for k in 0..V3_LANES {
+                        votes[x + k] = [v11[k], v01[k], v10[k], v00[k]];
+                    }
+                    x += V3_LANES;
                 }
-                x += V3_LANES;
+                // dlib's scalar tail (other association of the weights)
+                for x in simd_end..vis_w {
+                    let gx = i32::from(mid[x + 1]) - i32::from(mid[x - 1]);
+                    let gy = i32::from(dn[x]) - i32::from(up[x]);
+                    let v = ((gx * gx + gy * gy) as f32).sqrt();
+                    idx[x] = ((gy + 255) * side + gx + 255) as u32;
+                    let (vx0, vx1) = (w0[x], w1[x]);
+                    votes[x] = [vy1 * vx1 * v, vy0 * vx1 * v, vy1 * vx0 * v, vy0 * vx0 * v];
+                }
             }
-            // dlib's scalar tail (other association of the weights)
-            for x in simd_end..vis_w {
-                let gx = i32::from(mid[x + 1]) - i32::from(mid[x - 1]);
-                let gy = i32::from(dn[x]) - i32::from(up[x]);
-                let v = ((gx * gx + gy * gy) as f32).sqrt();
-                idx[x] = ((gy + 255) * side + gx + 255) as u32;
-                let (vx0, vx1) = (w0[x], w1[x]);
-                votes[x] = [vy1 * vx1 * v, vy0 * vx1 * v, vy1 * vx0 * v, vy0 * vx0 * v];
-            }
-            // the votes, in raster order
-            let row0 = &mut scratch.hist[hy * hist_w * 18..(hy + 2) * hist_w * 18];
-            let (r_top, r_bot) = row0.split_at_mut(hist_w * 18);
+            // the votes: left part of row t, right part of row t - 1
             let bins = &table.bins[..];
-            for ((&hx, &i), &[v11, v01, v10, v00]) in scratch.col_ix[1..vis_w]
-                .iter()
-                .zip(&idx[1..vis_w])
-                .zip(&votes[1..vis_w])
-            {
-                let at = hx * 18 + usize::from(bins[i as usize]);
-                r_top[at] += v11;
-                r_bot[at] += v01;
-                r_top[at + 18] += v10;
-                r_bot[at + 18] += v00;
+            let col_ix = &scratch.col_ix[..];
+            let (idx, votes) = (&scratch.row_idx[..], &scratch.row_votes[..]);
+            let hist = &mut scratch.hist[..];
+            let stream = |y: usize, from: usize, to: usize| {
+                let half = (y & 1) * vis_w;
+                let base = row_weights(y, cell).2 * row_len;
+                (
+                    base,
+                    &col_ix[from..to],
+                    &idx[half + from..half + to],
+                    &votes[half + from..half + to],
+                )
+            };
+            let vote = |hist: &mut [f32], base: usize, hx: usize, i: u32, v: [f32; 4]| {
+                let at = base + hx * 18 + usize::from(bins[i as usize]);
+                hist[at] += v[0];
+                hist[at + row_len] += v[1];
+                hist[at + 18] += v[2];
+                hist[at + row_len + 18] += v[3];
+            };
+            let left = if t < g.visible_h {
+                stream(t, 1, m)
+            } else {
+                stream(t - 1, 1, 1)
+            };
+            let right = if t >= 2 {
+                stream(t - 1, m, vis_w)
+            } else {
+                stream(t, m, m)
+            };
+            let both = left.1.len().min(right.1.len());
+            for k in 0..both {
+                vote(hist, left.0, left.1[k], left.2[k], left.3[k]);
+                vote(hist, right.0, right.1[k], right.2[k], right.3[k]);
+            }
+            for k in both..left.1.len() {
+                vote(hist, left.0, left.1[k], left.2[k], left.3[k]);
+            }
+            for k in both..right.1.len() {
+                vote(hist, right.0, right.1[k], right.2[k], right.3[k]);
             }
         }
     }
@@ -729,15 +774,32 @@ mod tests {
             (10, 40),
             (16, 16),
             (25, 9),
+            (96, 30),
+            (101, 31),
+            (640, 60),
+            (1280, 24),
         ] {
-            let img: Vec<u8> = (0..w * h).map(|_| rng.random::<u8>()).collect();
-            extract(&img, w, h, 8, 10, 10, &table, &mut scratch, &mut out);
-            let r = extract_reference(&img, w, h, 8, 10, 10);
-            assert_eq!((out.width, out.height), (r.width, r.height), "{w}x{h}");
-            assert!(
-                out.data.iter().zip(&r.data).all(|(a, b)| a.to_bits() == b.to_bits()),
-                "{w}x{h}"
-            );
+            // random pixels (all bins, short runs) and smooth waves (long runs of equal
+            // bins across cells, as in real images)
+            for smooth in [false, true] {
+                let img: Vec<u8> = (0..w * h)
+                    .map(|i| {
+                        if smooth {
+                            let (x, y) = ((i % w) as f64, (i / w) as f64);
+                            (127.0 + 120.0 * (x * 0.05 + y * 0.03).sin() * (y * 0.02).cos()) as u8
+                        } else {
+                            rng.random::<u8>()
+                        }
+                    })
+                    .collect();
+                extract(&img, w, h, 8, 10, 10, &table, &mut scratch, &mut out);
+                let r = extract_reference(&img, w, h, 8, 10, 10);
+                assert_eq!((out.width, out.height), (r.width, r.height), "{w}x{h}");
+                assert!(
+                    out.data.iter().zip(&r.data).all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "{w}x{h} smooth {smooth}"
+                );
+            }
         }
     }
 
