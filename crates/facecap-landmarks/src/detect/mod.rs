@@ -255,6 +255,7 @@ struct LevelWs {
 pub struct DetectWorkspace {
     up: [Gray; 2],
     pyr: Vec<Gray>,
+    resize: pyramid::ResizeScratch,
     levels: Vec<LevelWs>,
     all: Vec<Candidate>,
     kept: Vec<Candidate>,
@@ -408,9 +409,9 @@ impl FaceDetector {
             input
         } else {
             let [a, b] = &mut ws.up;
-            pyramid::up2(input, a);
+            pyramid::up2_with(input, a, &mut ws.resize);
             for _ in 1..times {
-                pyramid::up2(a.view(), b);
+                pyramid::up2_with(a.view(), b, &mut ws.resize);
                 std::mem::swap(a, b);
             }
             ws.up[0].view()
@@ -443,7 +444,7 @@ impl FaceDetector {
         for l in 1..levels {
             let (prev, rest) = ws.pyr.split_at_mut(l);
             let src = if l == 1 { base } else { prev[l - 1].view() };
-            pyramid::down6(src, &mut rest[0]);
+            pyramid::down6_with(src, &mut rest[0], &mut ws.resize);
         }
         // the levels scanned first (all of them unless `Auto` skips the finest)
         let first = match p.upsample {

@@ -386,8 +386,26 @@ struct FastV3<'a> {
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn ld8(s: &[f32], at: usize) -> pulp::f32x8 {
-    let s = &s[at..at + V3_LANES];
-    bytemuck::cast([s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]])
+    // a plain unaligned load (building the vector from elements lets LLVM turn the
+    // ten overlapping loads of a window into chains of shuffles)
+    bytemuck::pod_read_unaligned(bytemuck::cast_slice(&s[at..at + V3_LANES]))
+}
+
+/// Per fHOG plane, the rows `y0..y1` outside which every row is entirely zero
+/// (`(0, 0)` for an all-zero plane).
+#[cfg(target_arch = "x86_64")]
+fn nonzero_rows(feats: &FhogImage) -> [(usize, usize); PLANES] {
+    let w = feats.width;
+    std::array::from_fn(|i| {
+        let p = feats.plane(i);
+        // no early exit, so that it vectorises (the zero rows are read whole anyway)
+        let nonzero = |y: &usize| p[y * w..(y + 1) * w].iter().fold(0u32, |a, v| a | (v.to_bits() << 1)) != 0;
+        let Some(y0) = (0..feats.height).find(nonzero) else {
+            return (0, 0);
+        };
+        let y1 = (y0..feats.height).rev().find(nonzero).map_or(y0, |y| y + 1);
+        (y0, y1)
+    })
 }
 
 /// One vector into `d[at..at + 8]`.
@@ -423,28 +441,64 @@ impl pulp::WithSimd for FastV3<'_> {
         rowpass.resize(h * stride, 0.0);
         let span = V3_LANES + TAPS - 1;
         let zero = v3.splat_f32x8(0.0);
+        let blocks = nc.div_ceil(V3_LANES);
+        let live_rows = nonzero_rows(feats);
         for term in &bank.terms {
             let plane = feats.plane(term.plane);
             let fr: [pulp::f32x8; TAPS] = std::array::from_fn(|k| v3.splat_f32x8(term.row[k]));
-            let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
-            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k]
-            for y in 0..h {
+            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k], only on the
+            // rows that are not entirely zero (the fHOG padding rows give zeros)
+            let (y0, y1) = live_rows[term.plane];
+            rowpass[..y0 * stride].fill(0.0);
+            rowpass[y1 * stride..].fill(0.0);
+            for y in y0..y1 {
                 let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
                 let dst = &mut rowpass[y * stride..y * stride + nc];
-                let mut j = 0;
-                while j < nc {
-                    let jj = j.min(nc - V3_LANES);
-                    let win = &src[jj..jj + span];
-                    let mut acc = zero;
+                // two blocks at a time (independent accumulators), the last block
+                // shifted left to end at `nc`
+                let mut b = 0;
+                while b < blocks {
+                    let ja = (b * V3_LANES).min(nc - V3_LANES);
+                    let jb = ((b + 1) * V3_LANES).min(nc - V3_LANES);
+                    let (wa, wb) = (&src[ja..ja + span], &src[jb..jb + span]);
+                    let mut acc_a = zero;
+                    let mut acc_b = zero;
                     for k in 0..TAPS {
-                        acc = v3.mul_add_f32x8(ld8(win, k), fr[k], acc);
+                        acc_a = v3.mul_add_f32x8(ld8(wa, k), fr[k], acc_a);
+                        acc_b = v3.mul_add_f32x8(ld8(wb, k), fr[k], acc_b);
                     }
-                    st8(dst, jj, acc);
-                    j += V3_LANES;
+                    st8(dst, ja, acc_a);
+                    st8(dst, jb, acc_b);
+                    b += 2;
                 }
             }
-            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j]
-            for r in 0..nr {
+            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j], two output
+            // rows at a time (they share nine input rows; the taps are splat only here
+            // so that they stay in registers)
+            let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
+            let mut r = 0;
+            while r + 1 < nr {
+                let top = area.r0 + r - hr;
+                let rows = &rowpass[top * stride..(top + TAPS + 1) * stride];
+                let (o0, o1) = out[r * stride..(r + 2) * stride].split_at_mut(stride);
+                for j in (0..stride).step_by(V3_LANES) {
+                    let mut acc0 = ld8(o0, j);
+                    let mut acc1 = ld8(o1, j);
+                    let x = ld8(rows, j);
+                    acc0 = v3.mul_add_f32x8(x, fc[0], acc0);
+                    for m in 1..TAPS {
+                        let x = ld8(rows, m * stride + j);
+                        acc0 = v3.mul_add_f32x8(x, fc[m], acc0);
+                        acc1 = v3.mul_add_f32x8(x, fc[m - 1], acc1);
+                    }
+                    let x = ld8(rows, TAPS * stride + j);
+                    acc1 = v3.mul_add_f32x8(x, fc[TAPS - 1], acc1);
+                    st8(o0, j, acc0);
+                    st8(o1, j, acc1);
+                }
+                r += 2;
+            }
+            if r < nr {
                 let top = area.r0 + r - hr;
                 let rows = &rowpass[top * stride..(top + TAPS) * stride];
                 let o = &mut out[r * stride..(r + 1) * stride];
