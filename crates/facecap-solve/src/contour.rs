@@ -30,6 +30,11 @@
 //! | `slab` | 1.0 | half-width of the cross-section slab, in mean edge lengths at the vertex |
 //! | `reach_iod` | 0.7 | largest distance of a candidate from the mapped vertex, inter-ocular distances |
 //! | `min_back_iod` | 0.1 | a line needs candidates at least this far behind the mapped vertex |
+//! | `max_vertical_normal` | 0.5 | lines whose mapped vertex's normal has `|n_y|` at least this (under the chin) are dropped |
+//!
+//! The last row keeps the chin's points (those facing downwards) fixed: there the silhouette
+//! follows the head's pitch, which the 68 points determine poorly, and measured on real
+//! video (docs/expressions.md, "Contour correspondences") letting them slide lowers `jawOpen`.
 
 use std::collections::VecDeque;
 
@@ -49,6 +54,8 @@ pub struct ContourParams {
     pub reach_iod: f64,
     /// Shortest backward extent, inter-ocular distances.
     pub min_back_iod: f64,
+    /// Largest `|n_y|` of the mapped vertex's normal.
+    pub max_vertical_normal: f64,
 }
 
 impl Default for ContourParams {
@@ -57,6 +64,7 @@ impl Default for ContourParams {
             slab: 1.0,
             reach_iod: 0.7,
             min_back_iod: 0.1,
+            max_vertical_normal: 0.5,
         }
     }
 }
@@ -279,6 +287,9 @@ fn line_for(
             s.try_normalize(1e-300).unwrap_or(raw[i])
         })
         .collect();
+    if normals[anchor].y.abs() >= params.max_vertical_normal {
+        return None;
+    }
     Some(ContourLine {
         landmark: l,
         offsets: vertices.iter().map(|&v| pos[v as usize] - pos[a]).collect(),

@@ -25,6 +25,10 @@
 //!    is free (pure alternation). The step is accepted with a backtracking search on `F`.
 //! 4. Repeat 2-3 until the relative decrease of `F` is below `tol` (reported as
 //!    [`StopReason::SmallDecrease`]) or `max_alternations` is reached ([`StopReason::MaxIterations`]).
+//! 5. Jaw contour (rigs with [`crate::BlendshapeRig::contour`] candidates): before step 2
+//!    the points of iBUG 0-16 are chosen on the rig's silhouette under the starting pose
+//!    ([`crate::contour`]); after step 4 they are chosen again under the solved pose, and
+//!    when one moved by more than 0.25 px the frame is solved once more from there.
 //!
 //! | param | default | meaning | range |
 //! |---|---|---|---|
@@ -140,6 +144,7 @@ pub struct Exact3dSolver {
 
 /// No contour slot.
 const NO_SLOT: usize = usize::MAX;
+
 /// A contour point moving more than this (px) after a solve re-solves the frame.
 const CONTOUR_RESOLVE_PX: f64 = 0.25;
 
@@ -668,11 +673,18 @@ impl Exact3dSolver {
             let k = slot.normals.len();
             let f = &mut cw.facing[..k];
             let base = self.neutral[slot.point];
-            for ((fc, nc), oc) in f.iter_mut().zip(&slot.normals).zip(&slot.offsets) {
-                // cosine between the normal and the direction to the camera (perspective)
-                let c = pose.r * (base + oc) + pose.t;
+            // cosine between a normal and the direction to the camera (perspective)
+            let facing = |r: &Rotation3<f64>, x: Vector3<f64>, n: &Vector3<f64>| {
+                let c = r * x + pose.t;
                 let d = c.norm();
-                *fc = if d > 0.0 { -(pose.r * nc).dot(&c) / d } else { 0.0 };
+                if d > 0.0 {
+                    -(r * n).dot(&c) / d
+                } else {
+                    0.0
+                }
+            };
+            for ((fc, nc), oc) in f.iter_mut().zip(&slot.normals).zip(&slot.offsets) {
+                *fc = facing(&pose.r, base + oc, nc);
             }
             let x = silhouette_index(f, slot.anchor, slot.tau).clamp(0.0, (k - 1) as f64);
             let i0 = (x.floor() as usize).min(k - 1);
@@ -1031,7 +1043,7 @@ impl Exact3dSolver {
                 // when one moved noticeably
                 let moved = self.select_contour(&pose, &mut ws.cw);
                 let px = moved * self.params.camera.fx.max(self.params.camera.fy) / pose.t.z.max(MIN_DEPTH);
-                if !(px > CONTOUR_RESOLVE_PX) {
+                if px.is_nan() || px <= CONTOUR_RESOLVE_PX {
                     break;
                 }
                 cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);

@@ -6,7 +6,10 @@ use facecap_core::camera::{Intrinsics, ModelToCamera};
 use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
-use facecap_solve::{BlendshapeRig, Exact3dParams, Exact3dSolver, ExpressionSolver, ObjectiveParams, Solution, SolveState};
+use facecap_solve::{
+    BlendshapeRig, ContourCandidates, ContourParams, Exact3dParams, Exact3dSolver, ExpressionSolver, ObjectiveParams,
+    Solution, SolveState,
+};
 use nalgebra::{Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 const A: f64 = 7.0; // half-width and half-height (x, y)
@@ -17,7 +20,11 @@ const SPOKES: usize = 144; // beta in 2.5 degree steps
 
 /// The head's surface: angle `alpha` from the +z axis (the face's front), `beta` around it.
 fn surface(alpha: f64, beta: f64) -> Vector3<f64> {
-    Vector3::new(A * alpha.sin() * beta.cos(), A * alpha.sin() * beta.sin(), C * alpha.cos())
+    Vector3::new(
+        A * alpha.sin() * beta.cos(),
+        A * alpha.sin() * beta.sin(),
+        C * alpha.cos(),
+    )
 }
 
 /// Smooth expression fields: a jaw drop, a sideways mouth, a brow raise.
@@ -53,7 +60,10 @@ fn angles(v: usize) -> (f64, f64) {
     }
     let ring = 1 + (v - 1) / SPOKES;
     let spoke = (v - 1) % SPOKES;
-    ((ring as f64 * RING_DEG).to_radians(), (spoke as f64 * RING_DEG).to_radians())
+    (
+        (ring as f64 * RING_DEG).to_radians(),
+        (spoke as f64 * RING_DEG).to_radians(),
+    )
 }
 
 /// The mapped vertex of each landmark: the contour on the frontal silhouette (alpha 90)
@@ -113,9 +123,7 @@ fn rig() -> BlendshapeRig {
         normals: Vec::new(),
         uvs: Vec::new(),
     };
-    let map = LandmarkMap::from_slice(&(0..NUM_LANDMARKS).map(|l| Some(landmark_vertex(l) as u32)).collect::<Vec<_>>())
-        .unwrap();
-    BlendshapeRig::from_morph_mesh(MorphMesh { base, targets }, &map, "synthetic head").unwrap()
+    BlendshapeRig::from_morph_mesh(MorphMesh { base, targets }, &map(), "synthetic head").unwrap()
 }
 
 /// The true image of the head at `pose` with weights `e`: mapped vertices for the inner
@@ -161,7 +169,13 @@ fn observe(pose: &ModelToCamera, k: &Intrinsics, e: &[f64]) -> Landmarks68 {
 
 /// Yaw error (degrees), translation error (model units) and the largest weight error of
 /// the solve of `lm` (cold start).
-fn solve_errors(rig: &BlendshapeRig, k: Intrinsics, lm: &Landmarks68, pose: &ModelToCamera, e: &[f64]) -> (f64, f64, f64) {
+fn solve_errors(
+    rig: &BlendshapeRig,
+    k: Intrinsics,
+    lm: &Landmarks68,
+    pose: &ModelToCamera,
+    e: &[f64],
+) -> (f64, f64, f64) {
     let params = Exact3dParams {
         objective: ObjectiveParams { l1: 0.0, temporal: 0.0 },
         ..Exact3dParams::new(k)
@@ -172,15 +186,38 @@ fn solve_errors(rig: &BlendshapeRig, k: Intrinsics, lm: &Landmarks68, pose: &Mod
     let got = out.pose.unwrap();
     let dr = got.0.rotation.angle_to(&pose.0.rotation).to_degrees();
     let dt = (got.tvec() - pose.tvec()).norm();
-    let de = out.weights.iter().zip(e).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    let de = out
+        .weights
+        .iter()
+        .zip(e)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
     (dr, dt, de)
 }
 
 #[test]
 fn contour_candidates_follow_the_silhouette_at_30_degrees_of_yaw() {
-    let with = rig();
-    let cand = with.contour.as_ref().expect("the head's mesh extends behind the jaw");
-    assert_eq!(cand.lines.len(), 17, "every contour landmark has a line");
+    // default parameters: the side points only (the chin's, facing down, stay fixed)
+    let sides = rig();
+    let cand = sides.contour.as_ref().expect("the head's mesh extends behind the jaw");
+    let kept: Vec<usize> = cand.lines.iter().map(|l| l.landmark).collect();
+    assert_eq!(kept, vec![0, 1, 15, 16], "lines where |n_y| < 0.5");
+    // every contour point
+    let mut with = sides.clone();
+    let all = ContourParams {
+        max_vertical_normal: 1.1,
+        ..ContourParams::default()
+    };
+    with.contour = Some(ContourCandidates::from_mesh(
+        &with.mesh.as_ref().unwrap().base,
+        &map(),
+        &all,
+    ));
+    assert_eq!(
+        with.contour.as_ref().unwrap().lines.len(),
+        17,
+        "every contour landmark has a line"
+    );
     let mut without = with.clone();
     without.contour = None;
     let k = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
@@ -196,8 +233,14 @@ fn contour_candidates_follow_the_silhouette_at_30_degrees_of_yaw() {
     let lm = observe(&pose, &k, &e);
     let (r_fixed, t_fixed, e_fixed) = solve_errors(&without, k, &lm, &pose, &e);
     let (r_pose, t_pose, e_pose) = solve_errors(&with, k, &lm, &pose, &e);
+    let (r_side, t_side, e_side) = solve_errors(&sides, k, &lm, &pose, &e);
     eprintln!("fixed: rotation {r_fixed:.3} deg, translation {t_fixed:.3}, weights {e_fixed:.3}");
     eprintln!("pose:  rotation {r_pose:.3} deg, translation {t_pose:.3}, weights {e_pose:.3}");
+    eprintln!("sides: rotation {r_side:.3} deg, translation {t_side:.3}, weights {e_side:.3}");
+    assert!(
+        r_side < r_fixed,
+        "sides only: rotation error {r_side} against {r_fixed}"
+    );
     assert!(r_pose < 0.5 * r_fixed, "rotation error {r_pose} against {r_fixed}");
     assert!(e_pose < 0.5 * e_fixed, "weight error {e_pose} against {e_fixed}");
     assert!(t_pose < t_fixed, "translation error {t_pose} against {t_fixed}");
@@ -228,7 +271,10 @@ fn rig_without_back() -> BlendshapeRig {
     let mut mesh = full.mesh.clone().unwrap();
     let keep = 1 + ((90.0 / RING_DEG) as usize - 1 + 1) * SPOKES;
     mesh.base.triangles.retain(|t| t.iter().all(|&v| (v as usize) < keep));
-    let map = LandmarkMap::from_slice(&(0..NUM_LANDMARKS).map(|l| Some(landmark_vertex(l) as u32)).collect::<Vec<_>>())
-        .unwrap();
-    BlendshapeRig::from_morph_mesh(mesh, &map, "cut head").unwrap()
+    BlendshapeRig::from_morph_mesh(mesh, &map(), "cut head").unwrap()
+}
+
+fn map() -> LandmarkMap {
+    let v: Vec<Option<u32>> = (0..NUM_LANDMARKS).map(|l| Some(landmark_vertex(l) as u32)).collect();
+    LandmarkMap::from_slice(&v).unwrap()
 }
