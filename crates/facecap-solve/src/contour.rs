@@ -29,7 +29,7 @@
 //! |---|---|---|
 //! | `slab` | 1.0 | half-width of the cross-section slab, in mean edge lengths at the vertex |
 //! | `reach_iod` | 0.7 | largest distance of a candidate from the mapped vertex, inter-ocular distances |
-//! | `min_back_iod` | 0.1 | a line needs candidates at least this far behind the mapped vertex |
+//! | `min_back_iod` | 0.1 | a line needs candidates at least this deep (along -z) behind the mapped vertex |
 //! | `max_vertical_normal` | 0.5 | lines whose mapped vertex's normal has `|n_y|` at least this (under the chin) are dropped |
 //!
 //! The last row keeps the chin's points (those facing downwards) fixed: there the silhouette
@@ -272,9 +272,10 @@ fn line_for(
     bins.insert(0, (0.0, a));
     let vertices: Vec<u32> = bins.values().map(|&(_, v)| v as u32).collect();
     let anchor = bins.keys().position(|&k| k == 0)?;
+    // how far the mesh goes round behind the mapped vertex (depth, away from the viewer)
     let back_extent = vertices[anchor..]
         .iter()
-        .map(|&v| (pos[v as usize] - pos[a]).norm())
+        .map(|&v| pos[a].z - pos[v as usize].z)
         .fold(0.0, f64::max);
     if back_extent < params.min_back_iod * iod || vertices.len() < 2 {
         return None;
