@@ -493,7 +493,7 @@ mod tests {
             let out = solve_all(&s, &refs);
             let mut se = 0.0;
             for (o, w) in out.iter().zip(&truth) {
-                let (_, e) = o.as_ref().unwrap();
+                let (_, e, _) = o.as_ref().unwrap();
                 se += e.iter().zip(w).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
             }
             (se / (6 * frames.len()) as f64).sqrt()

@@ -811,8 +811,8 @@ impl Exact3dSolver {
             }
             let [ju, jv] = jac.d_point;
             let dj = self.point_deltas(&ws.cw, j);
-            for kk in 0..n {
-                let d = pose.r * dj[kk];
+            for (kk, dk) in dj.iter().enumerate() {
+                let d = pose.r * dk;
                 ws.a[ru + POSE + kk] = sw * (ju[0] * d.x + ju[2] * d.z);
                 ws.a[rv + POSE + kk] = sw * (jv[1] * d.y + jv[2] * d.z);
             }

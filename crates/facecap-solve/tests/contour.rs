@@ -1,3 +1,5 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
 //! Pose-dependent contour correspondences against fixed ones, on a synthetic head seen at
 //! 30 degrees of yaw: the tracked contour points are made from the true silhouette of the
 //! posed surface, so fixed vertices bias the pose and the weights.
