@@ -185,6 +185,12 @@ pub struct SolveArgs {
     /// Camera intrinsics `fx,fy,cx,cy` (pixels). Default: fx = fy = max(W, H), centre.
     #[arg(long)]
     pub camera: Option<String>,
+    /// Jaw contour correspondences of `exact3d` (iBUG 0-16): `pose` re-chooses each
+    /// contour point on the rig's silhouette under the current head pose (rigs whose mesh
+    /// extends behind the jaw, e.g. ICT; docs/expressions.md, "Contour correspondences"),
+    /// `fixed` keeps the landmark map's vertex.
+    #[arg(long, value_name = "pose|fixed", default_value = "pose", value_parser = ["pose", "fixed"])]
+    pub contour: String,
 }
 
 /// Everything shared by all videos.
@@ -305,7 +311,10 @@ pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Resu
             (mesh, map, "built-in default rig".to_string())
         }
     };
-    let rig = BlendshapeRig::from_morph_mesh(rig_mesh.clone(), &map, &rig_name)?;
+    let mut rig = BlendshapeRig::from_morph_mesh(rig_mesh.clone(), &map, &rig_name)?;
+    if solve.contour == "fixed" {
+        rig.contour = None;
+    }
     let renderer = facecap_pipeline::RigRenderer::new(&rig_mesh, Some(&map))?;
     let objective = ObjectiveParams {
         temporal,
@@ -392,6 +401,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "rig": rig_name,
         "solver": method.name(),
         "temporal": args.solve.temporal,
+        "contour": args.solve.contour,
         "smooth": args.smooth,
         "camera": args.solve.camera,
         "muscles": args.muscles,

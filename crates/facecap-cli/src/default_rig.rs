@@ -374,6 +374,9 @@ mod tests {
         assert!(rig.base.num_vertices() > 68 * 8);
         assert_eq!(rig.targets.len(), 16);
         map.validate(rig.base.num_vertices()).unwrap();
+        // the mesh ends at the jaw: the contour keeps its fixed vertices
+        let solve_rig = facecap_solve::BlendshapeRig::from_morph_mesh(rig.clone(), &map, "built-in").unwrap();
+        assert!(solve_rig.contour.is_none());
         for (i, p) in MEAN_FACE_68_CM.iter().enumerate() {
             let v = rig.base.positions[i];
             assert!((v.x as f64 - p[0]).abs() < 1e-5 && (v.z as f64 - p[2]).abs() < 1e-5);

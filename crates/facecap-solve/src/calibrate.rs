@@ -161,11 +161,16 @@ impl IdentityModes {
     }
 }
 
+/// A solved frame: pose, weights, and the chosen contour points (offsets from their
+/// landmarks' neutral, see [`Exact3dSolver::contour_offsets`]).
+type SolvedSample = (
+    facecap_core::camera::ModelToCamera,
+    Vec<f64>,
+    Vec<(usize, Vector3<f64>)>,
+);
+
 /// Solves `frames` in order with `solver` (warm-started), returning poses and weights.
-fn solve_all(
-    solver: &Exact3dSolver,
-    frames: &[&Landmarks68],
-) -> Vec<Option<(facecap_core::camera::ModelToCamera, Vec<f64>)>> {
+fn solve_all(solver: &Exact3dSolver, frames: &[&Landmarks68]) -> Vec<Option<SolvedSample>> {
     let n = solver.num_shapes();
     let mut ws = solver.workspace();
     let mut state = SolveState::new(n);
@@ -173,7 +178,7 @@ fn solve_all(
     frames
         .iter()
         .map(|l| match solver.solve_into(l, &mut ws, &mut state, &mut sol) {
-            Ok(_) => sol.pose.map(|p| (p, sol.weights.clone())),
+            Ok(_) => sol.pose.map(|p| (p, sol.weights.clone(), solver.contour_offsets(&ws))),
             Err(_) => {
                 state.reset();
                 None
@@ -251,7 +256,7 @@ pub fn fit_subject_with_identity(
         let solved = solve_all(&solver, &sample);
         let energy: Vec<f64> = solved
             .iter()
-            .map(|s| s.as_ref().map_or(f64::INFINITY, |(_, w)| w.iter().sum()))
+            .map(|s| s.as_ref().map_or(f64::INFINITY, |(_, w, _)| w.iter().sum()))
             .collect();
         let finite: Vec<f64> = energy.iter().copied().filter(|e| e.is_finite()).collect();
         if finite.is_empty() {
@@ -274,7 +279,7 @@ pub fn fit_subject_with_identity(
         let mut b = [Vector3::<f64>::zeros(); NUM_LANDMARKS];
         let mut used = 0usize;
         for ((obs, s), &en) in sample.iter().zip(&solved).zip(&energy) {
-            let Some((pose, _)) = s else { continue };
+            let Some((pose, _, contour)) = s else { continue };
             if en > threshold {
                 continue;
             }
@@ -292,11 +297,16 @@ pub fn fit_subject_with_identity(
                 if !current.mapped[l] {
                     continue;
                 }
+                // a contour landmark is where the solve put it on the silhouette
+                let shift = contour
+                    .iter()
+                    .find(|(c, _)| *c == l)
+                    .map_or(Vector3::zeros(), |(_, o)| *o);
                 let x = Point3::new(
                     current.neutral[[l, 0]],
                     current.neutral[[l, 1]],
                     current.neutral[[l, 2]],
-                );
+                ) + shift;
                 let c = pose.0 * x;
                 if c.z <= 1e-9 {
                     ok = false;
@@ -408,7 +418,7 @@ pub fn fit_subject_with_identity(
     let solver = build(&current)?;
     let after: Vec<f64> = solve_all(&solver, &sample)
         .iter()
-        .filter_map(|s| s.as_ref().map(|(_, w)| w.iter().sum::<f64>()))
+        .filter_map(|s| s.as_ref().map(|(_, w, _)| w.iter().sum::<f64>()))
         .collect();
     let mapped = (0..NUM_LANDMARKS).filter(|&l| rig.mapped[l]).count().max(1);
     Ok(SubjectFit {
@@ -483,7 +493,7 @@ mod tests {
             let out = solve_all(&s, &refs);
             let mut se = 0.0;
             for (o, w) in out.iter().zip(&truth) {
-                let (_, e) = o.as_ref().unwrap();
+                let (_, e, _) = o.as_ref().unwrap();
                 se += e.iter().zip(w).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
             }
             (se / (6 * frames.len()) as f64).sqrt()

@@ -25,6 +25,10 @@
 //!    is free (pure alternation). The step is accepted with a backtracking search on `F`.
 //! 4. Repeat 2-3 until the relative decrease of `F` is below `tol` (reported as
 //!    [`StopReason::SmallDecrease`]) or `max_alternations` is reached ([`StopReason::MaxIterations`]).
+//! 5. Jaw contour (rigs with [`crate::BlendshapeRig::contour`] candidates): before step 2
+//!    the points of iBUG 0-16 are chosen on the rig's silhouette under the starting pose
+//!    ([`crate::contour`]); after step 4 they are chosen again under the solved pose, and
+//!    when one moved by more than 0.25 px the frame is solved once more from there.
 //!
 //! | param | default | meaning | range |
 //! |---|---|---|---|
@@ -39,6 +43,7 @@ use facecap_core::camera::{Intrinsics, ModelToCamera};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 use nalgebra::{Isometry3, Matrix4, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector4};
 
+use crate::contour::silhouette_index;
 use crate::error::{check_count, check_range, Error, Result};
 use crate::rig::BlendshapeRig;
 use crate::solver::{check_io, ExpressionSolver, ObjectiveParams, Report, Solution, SolveState, StopReason};
@@ -131,6 +136,46 @@ pub struct Exact3dSolver {
     /// Index of each dense point's observation in the dense input (see [`DensePoints`]);
     /// `neutral`, `deltas` and `sqrt_w` hold the dense points after the `idx` ones.
     dense_sources: Vec<usize>,
+    /// Contour landmarks whose point follows the pose ([`crate::contour`]).
+    contour: Vec<ContourSlot>,
+    /// Contour slot of each mapped landmark (`idx` order; [`NO_SLOT`]: none).
+    slot_of: Vec<usize>,
+}
+
+/// No contour slot.
+const NO_SLOT: usize = usize::MAX;
+
+/// A contour point moving more than this (px) after a solve re-solves the frame.
+const CONTOUR_RESOLVE_PX: f64 = 0.25;
+
+/// One contour landmark's candidates in the solver (see [`crate::contour::ContourLine`]).
+#[derive(Debug, Clone)]
+struct ContourSlot {
+    /// Point index (`idx` order).
+    point: usize,
+    /// Index of the mapped vertex among the candidates.
+    anchor: usize,
+    /// Silhouette level (the mapped vertex's frontal facing).
+    tau: f64,
+    /// Candidate positions minus the mapped vertex's.
+    offsets: Vec<Vector3<f64>>,
+    /// Candidate normals.
+    normals: Vec<Vector3<f64>>,
+    /// Candidate deltas, row-major `candidates x n`.
+    deltas: Vec<Vector3<f64>>,
+}
+
+/// The chosen contour points of a frame (in [`Exact3dWorkspace`]).
+#[derive(Debug, Clone)]
+struct ContourWork {
+    /// Per slot: the chosen point minus the mapped vertex (model units).
+    offset: Vec<Vector3<f64>>,
+    /// Per slot: the chosen fractional candidate index.
+    index: Vec<f64>,
+    /// Per slot: the chosen point's deltas, row-major `slots x n`.
+    deltas: Vec<Vector3<f64>>,
+    /// Scratch: facings along a line.
+    facing: Vec<f64>,
 }
 
 /// Extra model points of the 3D solve beyond the 68 iBUG landmarks (e.g. the face mesh's
@@ -334,6 +379,8 @@ pub struct Exact3dWorkspace {
     rigid_model: Vec<Point3<f64>>,
     rigid_image: Vec<Point2<f64>>,
     rigid_w: Vec<f64>,
+    /// The chosen contour points.
+    cw: ContourWork,
     qp: QpWorkspace,
 }
 
@@ -364,8 +411,66 @@ impl Pose {
     }
 }
 
+/// The solver's contour slots from the rig's candidates and mesh (none without either,
+/// or when the mesh's targets do not match the rig's shapes).
+fn contour_slots(rig: &BlendshapeRig, idx: &[usize]) -> Vec<ContourSlot> {
+    let (Some(cand), Some(mesh)) = (&rig.contour, &rig.mesh) else {
+        return Vec::new();
+    };
+    let n = rig.num_shapes();
+    if mesh.targets.len() != n {
+        return Vec::new();
+    }
+    let nv = mesh.base.positions.len();
+    let mut out = Vec::new();
+    for line in &cand.lines {
+        let Some(point) = idx.iter().position(|&l| l == line.landmark) else {
+            continue;
+        };
+        let k = line.vertices.len();
+        if k < 2
+            || line.anchor >= k
+            || line.offsets.len() != k
+            || line.normals.len() != k
+            || line.vertices.iter().any(|&v| v as usize >= nv)
+        {
+            continue;
+        }
+        let mut deltas = Vec::with_capacity(k * n);
+        for &v in &line.vertices {
+            for t in &mesh.targets {
+                let d = t
+                    .deltas
+                    .get(v as usize)
+                    .copied()
+                    .unwrap_or_else(nalgebra::Vector3::zeros);
+                deltas.push(Vector3::new(f64::from(d.x), f64::from(d.y), f64::from(d.z)));
+            }
+        }
+        if line
+            .offsets
+            .iter()
+            .chain(&line.normals)
+            .chain(&deltas)
+            .any(|v| !v.iter().all(|x| x.is_finite()))
+        {
+            continue;
+        }
+        out.push(ContourSlot {
+            point,
+            anchor: line.anchor,
+            tau: line.frontal_facing(),
+            offsets: line.offsets.clone(),
+            normals: line.normals.clone(),
+            deltas,
+        });
+    }
+    out
+}
+
 impl Exact3dSolver {
-    /// Validates parameters and extracts the mapped landmarks of the rig.
+    /// Validates parameters and extracts the mapped landmarks of the rig; the contour
+    /// landmarks with candidates in `rig.contour` follow the pose ([`crate::contour`]).
     pub fn new(rig: &BlendshapeRig, params: Exact3dParams) -> Result<Self> {
         params.validate()?;
         let n = rig.num_shapes();
@@ -400,7 +505,14 @@ impl Exact3dSolver {
             return Err(Error::rig("3D rig", "non-finite coordinate"));
         }
         let sqrt_w = vec![1.0; idx.len()];
+        let contour = contour_slots(rig, &idx);
+        let mut slot_of = vec![NO_SLOT; idx.len()];
+        for (s, c) in contour.iter().enumerate() {
+            slot_of[c.point] = s;
+        }
         Ok(Exact3dSolver {
+            contour,
+            slot_of,
             dense_sources: Vec::new(),
             names: rig.names.clone(),
             n,
@@ -479,8 +591,10 @@ impl Exact3dSolver {
         }
         let m0 = self.idx.len();
         let mut posed = vec![Vector3::zeros(); self.neutral.len()];
-        self.pose_points(weights, &mut posed);
         let p = Pose::from_model_to_camera(pose);
+        let mut cw = self.contour_work();
+        self.select_contour(&p, &mut cw);
+        self.pose_points(&cw, weights, &mut posed);
         let k = &self.params.camera;
         let rt = p.r.inverse();
         let mut out = Vec::with_capacity(self.dense_sources.len());
@@ -519,23 +633,123 @@ impl Exact3dSolver {
         &self.params.camera
     }
 
-    fn pose_points(&self, e: &[f64], out: &mut [Vector3<f64>]) {
-        let n = self.n;
+    fn pose_points(&self, cw: &ContourWork, e: &[f64], out: &mut [Vector3<f64>]) {
         for (j, o) in out.iter_mut().enumerate() {
-            let mut p = self.neutral[j];
-            for (k, &w) in e.iter().enumerate() {
+            let mut p = self.point_neutral(cw, j);
+            for (&d, &w) in self.point_deltas(cw, j).iter().zip(e) {
                 if w != 0.0 {
-                    p += self.deltas[j * n + k] * w;
+                    p += d * w;
                 }
             }
             *o = p;
         }
     }
 
+    /// Neutral of point `j` (the chosen contour candidate for a contour slot).
+    #[inline]
+    fn point_neutral(&self, cw: &ContourWork, j: usize) -> Vector3<f64> {
+        match self.slot_of.get(j) {
+            Some(&s) if s != NO_SLOT => self.neutral[j] + cw.offset[s],
+            _ => self.neutral[j],
+        }
+    }
+
+    /// Per-shape deltas of point `j` (the chosen contour candidate's for a contour slot).
+    #[inline]
+    fn point_deltas<'a>(&'a self, cw: &'a ContourWork, j: usize) -> &'a [Vector3<f64>] {
+        let n = self.n;
+        match self.slot_of.get(j) {
+            Some(&s) if s != NO_SLOT => &cw.deltas[s * n..(s + 1) * n],
+            _ => &self.deltas[j * n..(j + 1) * n],
+        }
+    }
+
+    /// Chooses each contour slot's point on the silhouette under `pose` (see
+    /// [`crate::contour`]). Returns the largest move of a chosen point (model units).
+    fn select_contour(&self, pose: &Pose, cw: &mut ContourWork) -> f64 {
+        let n = self.n;
+        let mut moved = 0.0f64;
+        for (s, slot) in self.contour.iter().enumerate() {
+            let k = slot.normals.len();
+            let f = &mut cw.facing[..k];
+            let base = self.neutral[slot.point];
+            // cosine between a normal and the direction to the camera (perspective)
+            let facing = |r: &Rotation3<f64>, x: Vector3<f64>, n: &Vector3<f64>| {
+                let c = r * x + pose.t;
+                let d = c.norm();
+                if d > 0.0 {
+                    -(r * n).dot(&c) / d
+                } else {
+                    0.0
+                }
+            };
+            for ((fc, nc), oc) in f.iter_mut().zip(&slot.normals).zip(&slot.offsets) {
+                *fc = facing(&pose.r, base + oc, nc);
+            }
+            let x = silhouette_index(f, slot.anchor, slot.tau).clamp(0.0, (k - 1) as f64);
+            let i0 = (x.floor() as usize).min(k - 1);
+            let i1 = (i0 + 1).min(k - 1);
+            let a = x - i0 as f64;
+            let off = slot.offsets[i0] * (1.0 - a) + slot.offsets[i1] * a;
+            moved = moved.max((off - cw.offset[s]).norm());
+            cw.offset[s] = off;
+            cw.index[s] = x;
+            let (d0, d1) = (&slot.deltas[i0 * n..(i0 + 1) * n], &slot.deltas[i1 * n..(i1 + 1) * n]);
+            for ((o, p), q) in cw.deltas[s * n..(s + 1) * n].iter_mut().zip(d0).zip(d1) {
+                *o = p * (1.0 - a) + q * a;
+            }
+        }
+        moved
+    }
+
+    /// A contour state at the mapped vertices (nothing chosen yet).
+    fn contour_work(&self) -> ContourWork {
+        let n = self.n;
+        let longest = self.contour.iter().map(|c| c.normals.len()).max().unwrap_or(0);
+        let mut deltas = Vec::with_capacity(self.contour.len() * n);
+        for c in &self.contour {
+            deltas.extend_from_slice(&c.deltas[c.anchor * n..(c.anchor + 1) * n]);
+        }
+        ContourWork {
+            offset: vec![Vector3::zeros(); self.contour.len()],
+            index: self.contour.iter().map(|c| c.anchor as f64).collect(),
+            deltas,
+            facing: vec![0.0; longest],
+        }
+    }
+
+    /// Number of contour landmarks whose correspondence follows the pose (0 when the rig
+    /// has no contour candidates).
+    pub fn num_contour(&self) -> usize {
+        self.contour.len()
+    }
+
+    /// After a solve with `ws`: each contour landmark's chosen point as an offset from the
+    /// landmark's neutral (model frame), `(landmark, offset)`.
+    pub fn contour_offsets(&self, ws: &Exact3dWorkspace) -> Vec<(usize, Vector3<f64>)> {
+        self.contour
+            .iter()
+            .zip(&ws.cw.offset)
+            .map(|(c, o)| (self.idx[c.point], *o))
+            .collect()
+    }
+
+    /// After a solve with `ws`: each contour landmark's chosen position along its
+    /// candidate line, in candidates from the mapped vertex (`+`: towards the back),
+    /// `(landmark, steps)`.
+    pub fn contour_steps(&self, ws: &Exact3dWorkspace) -> Vec<(usize, f64)> {
+        self.contour
+            .iter()
+            .zip(&ws.cw.index)
+            .map(|(c, &x)| (self.idx[c.point], x - c.anchor as f64))
+            .collect()
+    }
+
     /// `F` at (pose, e); `+inf` if a point is behind the camera.
     #[allow(clippy::too_many_arguments)]
     fn cost(
         &self,
+        cw: &ContourWork,
         pose: &Pose,
         e: &[f64],
         ws_posed: &mut [Vector3<f64>],
@@ -543,7 +757,7 @@ impl Exact3dSolver {
         rho: &[f64],
         prev: Option<&[f64]>,
     ) -> f64 {
-        self.pose_points(e, ws_posed);
+        self.pose_points(cw, e, ws_posed);
         let k = &self.params.camera;
         let mut f = 0.0;
         for (j, x) in ws_posed.iter().enumerate() {
@@ -578,7 +792,7 @@ impl Exact3dSolver {
         let k = &self.params.camera;
         let e = &ws.e;
         let m = ws.m;
-        self.pose_points(e, &mut ws.posed[..m]);
+        self.pose_points(&ws.cw, e, &mut ws.posed[..m]);
         for (j, x) in ws.posed[..m].iter().enumerate() {
             let rx = pose.r * x;
             let c = rx + pose.t;
@@ -596,8 +810,9 @@ impl Exact3dSolver {
                 ws.a[rv + a] = sw * jac.d_pose[1][a];
             }
             let [ju, jv] = jac.d_point;
-            for kk in 0..n {
-                let d = pose.r * self.deltas[j * n + kk];
+            let dj = self.point_deltas(&ws.cw, j);
+            for (kk, dk) in dj.iter().enumerate() {
+                let d = pose.r * dk;
                 ws.a[ru + POSE + kk] = sw * (ju[0] * d.x + ju[2] * d.z);
                 ws.a[rv + POSE + kk] = sw * (jv[1] * d.y + jv[2] * d.z);
             }
@@ -608,7 +823,7 @@ impl Exact3dSolver {
     /// Affine-camera initial pose for weights `e` (module docs, step 1).
     fn initial_pose(&self, ws: &mut Exact3dWorkspace) -> Result<Pose> {
         let np = ws.m;
-        self.pose_points(&ws.e, &mut ws.posed[..np]);
+        self.pose_points(&ws.cw, &ws.e, &mut ws.posed[..np]);
         let k = &self.params.camera;
         let mut m = Matrix4::<f64>::zeros();
         let (mut bu, mut bv) = (Vector4::<f64>::zeros(), Vector4::<f64>::zeros());
@@ -655,7 +870,7 @@ impl Exact3dSolver {
             return cost;
         }
         let m = ws.m;
-        self.pose_points(&ws.e, &mut ws.posed[..m]);
+        self.pose_points(&ws.cw, &ws.e, &mut ws.posed[..m]);
         for (j, x) in ws.posed[..m].iter().enumerate() {
             ws.rigid_model[j] = Point3::from(*x);
             ws.rigid_image[j] = Point2::new(ws.obs[2 * j], ws.obs[2 * j + 1]);
@@ -681,7 +896,7 @@ impl Exact3dSolver {
             return cost;
         }
         let trial = Pose::from_model_to_camera(&refined);
-        let c = self.cost(&trial, &ws.e, &mut ws.posed[..m], &ws.obs, &ws.rho, prev);
+        let c = self.cost(&ws.cw, &trial, &ws.e, &mut ws.posed[..m], &ws.obs, &ws.rho, prev);
         if c < cost {
             *pose = trial;
             c
@@ -727,6 +942,7 @@ impl ExpressionSolver for Exact3dSolver {
             rigid_model: vec![Point3::origin(); m],
             rigid_image: vec![Point2::origin(); m],
             rigid_w: vec![0.0; m],
+            cw: self.contour_work(),
             qp: QpWorkspace::new(cols),
         }
     }
@@ -797,10 +1013,19 @@ impl Exact3dSolver {
             (Some(p), true) => Pose::from_model_to_camera(p),
             _ => self.initial_pose(ws)?,
         };
-        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
+        let mut cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
         if !cost.is_finite() {
             pose = self.initial_pose(ws)?;
-            cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
+            cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
+            if !cost.is_finite() {
+                return Err(Error::Input {
+                    reason: "no pose puts the face in front of the camera".into(),
+                });
+            }
+        }
+        if !self.contour.is_empty() {
+            self.select_contour(&pose, &mut ws.cw);
+            cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
             if !cost.is_finite() {
                 return Err(Error::Input {
                     reason: "no pose puts the face in front of the camera".into(),
@@ -812,108 +1037,134 @@ impl Exact3dSolver {
         let mut stop = StopReason::MaxIterations;
         let mut iterations = 0;
         let mut inner = 0;
-        for round in 0..=MAX_EXCLUSIVE_ROUNDS {
-            if round > 0 {
-                // an exclusive pair is active together: hold the smaller of each at 0
-                let mut changed = false;
-                for &(a, b) in &self.priors.exclusive {
-                    if ws.e[a] > EXCLUSIVE_EPS && ws.e[b] > EXCLUSIVE_EPS {
-                        let loser = if ws.e[a] < ws.e[b] { a } else { b };
-                        ws.hi[POSE + loser] = 0.0;
-                        ws.e[loser] = 0.0;
-                        changed = true;
-                    }
-                }
-                if !changed {
+        for contour_pass in 0..2 {
+            if contour_pass > 0 {
+                // the solve moved the pose: choose the contour points again, and solve again
+                // when one moved noticeably
+                let moved = self.select_contour(&pose, &mut ws.cw);
+                let px = moved * self.params.camera.fx.max(self.params.camera.fy) / pose.t.z.max(MIN_DEPTH);
+                if px.is_nan() || px <= CONTOUR_RESOLVE_PX {
                     break;
                 }
-                cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
+                cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
+                if !cost.is_finite() {
+                    break;
+                }
             }
-            for _ in 0..self.params.max_alternations {
-                iterations += 1;
-                let before = cost;
-                cost = self.rigid_update(&mut pose, cost, prev, ws);
-                if !self.linearise(&pose, ws) {
-                    break;
-                }
-                // H = 2 A^T A (+ 2 mu on e), g = -2 A^T c - lambda + 2 mu e_prev, c = r - A_e e
-                let rows = 2 * ws.m;
-                for row in 0..rows {
-                    let mut c = ws.r[row];
-                    for kk in 0..n {
-                        c -= ws.a[row * cols + POSE + kk] * ws.e[kk];
-                    }
-                    ws.r[row] = c;
-                }
-                ws.h.fill(0.0);
-                ws.g.fill(0.0);
-                for row in 0..rows {
-                    let ar = &ws.a[row * cols..(row + 1) * cols];
-                    let c = ws.r[row];
-                    for a in 0..cols {
-                        let va = ar[a];
-                        if va == 0.0 {
-                            continue;
-                        }
-                        ws.g[a] -= 2.0 * va * c;
-                        let hrow = &mut ws.h[a * cols..(a + 1) * cols];
-                        for b in a..cols {
-                            hrow[b] += 2.0 * va * ar[b];
+            for round in 0..=MAX_EXCLUSIVE_ROUNDS {
+                if round > 0 {
+                    // an exclusive pair is active together: hold the smaller of each at 0
+                    let mut changed = false;
+                    for &(a, b) in &self.priors.exclusive {
+                        if ws.e[a] > EXCLUSIVE_EPS && ws.e[b] > EXCLUSIVE_EPS {
+                            let loser = if ws.e[a] < ws.e[b] { a } else { b };
+                            ws.hi[POSE + loser] = 0.0;
+                            ws.e[loser] = 0.0;
+                            changed = true;
                         }
                     }
-                }
-                for a in 0..cols {
-                    for b in 0..a {
-                        ws.h[a * cols + b] = ws.h[b * cols + a];
-                    }
-                }
-                for kk in 0..n {
-                    let i = POSE + kk;
-                    let mu_k = mu * self.priors.temporal[kk];
-                    ws.h[i * cols + i] += 2.0 * mu_k + 2.0 * ws.rho[kk] + self.ridge;
-                    ws.g[i] += -obj.l1 + 2.0 * mu_k * state.weights[kk];
-                }
-                for a in 0..POSE {
-                    ws.h[a * cols + a] += self.ridge;
-                }
-                ws.z[..POSE].fill(0.0);
-                ws.z[POSE..].copy_from_slice(&ws.e);
-                if !self.params.joint {
-                    ws.lo[..POSE].fill(0.0);
-                    ws.hi[..POSE].fill(0.0);
-                }
-                let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.z, &opts, &mut ws.qp);
-                inner += o.iterations;
-                // backtracking on F along the QP step
-                let mut alpha = 1.0;
-                let mut accepted = false;
-                for _ in 0..MAX_HALVINGS {
-                    let trial_pose = pose.step(&ws.z[..POSE], alpha);
-                    for kk in 0..n {
-                        ws.e_trial[kk] = ws.e[kk] + alpha * (ws.z[POSE + kk] - ws.e[kk]);
-                    }
-                    let c = self.cost(&trial_pose, &ws.e_trial, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
-                    if c < cost {
-                        pose = trial_pose;
-                        ws.e.copy_from_slice(&ws.e_trial);
-                        cost = c;
-                        accepted = true;
+                    if !changed {
                         break;
                     }
-                    alpha *= 0.5;
+                    cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, prev);
                 }
-                if !accepted || before - cost <= self.params.tol * before.abs().max(1e-300) {
-                    stop = StopReason::SmallDecrease;
+                for _ in 0..self.params.max_alternations {
+                    iterations += 1;
+                    let before = cost;
+                    cost = self.rigid_update(&mut pose, cost, prev, ws);
+                    if !self.linearise(&pose, ws) {
+                        break;
+                    }
+                    // H = 2 A^T A (+ 2 mu on e), g = -2 A^T c - lambda + 2 mu e_prev, c = r - A_e e
+                    let rows = 2 * ws.m;
+                    for row in 0..rows {
+                        let mut c = ws.r[row];
+                        for kk in 0..n {
+                            c -= ws.a[row * cols + POSE + kk] * ws.e[kk];
+                        }
+                        ws.r[row] = c;
+                    }
+                    ws.h.fill(0.0);
+                    ws.g.fill(0.0);
+                    for row in 0..rows {
+                        let ar = &ws.a[row * cols..(row + 1) * cols];
+                        let c = ws.r[row];
+                        for a in 0..cols {
+                            let va = ar[a];
+                            if va == 0.0 {
+                                continue;
+                            }
+                            ws.g[a] -= 2.0 * va * c;
+                            let hrow = &mut ws.h[a * cols..(a + 1) * cols];
+                            for b in a..cols {
+                                hrow[b] += 2.0 * va * ar[b];
+                            }
+                        }
+                    }
+                    for a in 0..cols {
+                        for b in 0..a {
+                            ws.h[a * cols + b] = ws.h[b * cols + a];
+                        }
+                    }
+                    for kk in 0..n {
+                        let i = POSE + kk;
+                        let mu_k = mu * self.priors.temporal[kk];
+                        ws.h[i * cols + i] += 2.0 * mu_k + 2.0 * ws.rho[kk] + self.ridge;
+                        ws.g[i] += -obj.l1 + 2.0 * mu_k * state.weights[kk];
+                    }
+                    for a in 0..POSE {
+                        ws.h[a * cols + a] += self.ridge;
+                    }
+                    ws.z[..POSE].fill(0.0);
+                    ws.z[POSE..].copy_from_slice(&ws.e);
+                    if !self.params.joint {
+                        ws.lo[..POSE].fill(0.0);
+                        ws.hi[..POSE].fill(0.0);
+                    }
+                    let o = solve_box_qp(&ws.h, &ws.g, &ws.lo, &ws.hi, &mut ws.z, &opts, &mut ws.qp);
+                    inner += o.iterations;
+                    // backtracking on F along the QP step
+                    let mut alpha = 1.0;
+                    let mut accepted = false;
+                    for _ in 0..MAX_HALVINGS {
+                        let trial_pose = pose.step(&ws.z[..POSE], alpha);
+                        for kk in 0..n {
+                            ws.e_trial[kk] = ws.e[kk] + alpha * (ws.z[POSE + kk] - ws.e[kk]);
+                        }
+                        let c = self.cost(
+                            &ws.cw,
+                            &trial_pose,
+                            &ws.e_trial,
+                            &mut ws.posed[..ws.m],
+                            &ws.obs,
+                            &ws.rho,
+                            prev,
+                        );
+                        if c < cost {
+                            pose = trial_pose;
+                            ws.e.copy_from_slice(&ws.e_trial);
+                            cost = c;
+                            accepted = true;
+                            break;
+                        }
+                        alpha *= 0.5;
+                    }
+                    if !accepted || before - cost <= self.params.tol * before.abs().max(1e-300) {
+                        stop = StopReason::SmallDecrease;
+                        break;
+                    }
+                }
+                if self.priors.exclusive.is_empty() {
                     break;
                 }
             }
-            if self.priors.exclusive.is_empty() {
+            if self.contour.is_empty() {
                 break;
             }
         }
         // outputs
         let k = &self.params.camera;
-        self.pose_points(&ws.e, &mut ws.posed[..ws.m]);
+        self.pose_points(&ws.cw, &ws.e, &mut ws.posed[..ws.m]);
         out.fitted = [Point2::new(f64::NAN, f64::NAN); NUM_LANDMARKS];
         for (j, &l) in self.idx.iter().enumerate() {
             let c = pose.r * ws.posed[j] + pose.t;
@@ -959,7 +1210,10 @@ impl Exact3dSolver {
         }
         let scale = prior_scale(input);
         let rho: Vec<f64> = self.priors.ridge.iter().map(|r| r * scale).collect();
-        Ok(self.cost(&Pose::from_model_to_camera(pose), weights, &mut posed, &obs, &rho, prev))
+        let pose = Pose::from_model_to_camera(pose);
+        let mut cw = self.contour_work();
+        self.select_contour(&pose, &mut cw);
+        Ok(self.cost(&cw, &pose, weights, &mut posed, &obs, &rho, prev))
     }
 
     /// The best pose for fixed weights (affine start + rigid LM to convergence) and its
@@ -984,11 +1238,17 @@ impl Exact3dSolver {
         for (r, p) in ws.rho.iter_mut().zip(&self.priors.ridge) {
             *r = p * scale;
         }
-        let mut cost = self.cost(&pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, None);
         let mut s = self.clone();
         s.params.pose_iterations = 50;
-        for _ in 0..4 {
-            cost = s.rigid_update(&mut pose, cost, None, &mut ws);
+        let mut cost = f64::INFINITY;
+        for pass in 0..2 {
+            if pass > 0 && self.select_contour(&pose, &mut ws.cw) == 0.0 {
+                break;
+            }
+            cost = self.cost(&ws.cw, &pose, &ws.e, &mut ws.posed[..ws.m], &ws.obs, &ws.rho, None);
+            for _ in 0..4 {
+                cost = s.rigid_update(&mut pose, cost, None, &mut ws);
+            }
         }
         Ok((pose.to_model_to_camera(), cost))
     }

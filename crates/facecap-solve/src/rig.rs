@@ -23,6 +23,7 @@ use nalgebra::{Point3, Vector3};
 use ndarray::{Array2, Array3};
 use rand::{Rng, SeedableRng};
 
+use crate::contour::{ContourCandidates, ContourParams};
 use crate::error::{Error, Result};
 
 /// A blendshape rig at the 68 landmarks (see module docs).
@@ -38,6 +39,10 @@ pub struct BlendshapeRig {
     pub mapped: [bool; NUM_LANDMARKS],
     /// The full morph mesh, when the rig came from one (for posed-mesh output).
     pub mesh: Option<MorphMesh>,
+    /// Candidate vertices of the jaw contour landmarks on `mesh` (derived from the mesh
+    /// and the landmark map by [`BlendshapeRig::from_morph_mesh`]; `None` or empty: the
+    /// contour keeps its fixed vertices), see [`crate::contour`].
+    pub contour: Option<ContourCandidates>,
 }
 
 fn check_names(source: &str, names: &[String]) -> Result<()> {
@@ -99,6 +104,7 @@ impl BlendshapeRig {
             deltas,
             mapped,
             mesh: None,
+            contour: None,
         };
         rig.check_mapped(src)?;
         Ok(rig)
@@ -143,12 +149,14 @@ impl BlendshapeRig {
                 }
             }
         }
+        let contour = ContourCandidates::from_mesh(&mesh.base, map, &ContourParams::default());
         let rig = BlendshapeRig {
             names,
             neutral,
             deltas,
             mapped,
             mesh: Some(mesh),
+            contour: (!contour.is_empty()).then_some(contour),
         };
         rig.check_mapped(source_name)?;
         Ok(rig)
@@ -274,6 +282,7 @@ impl BlendshapeRig {
             deltas,
             mapped: self.mapped,
             mesh,
+            contour: self.contour.clone(),
         })
     }
 
@@ -336,6 +345,7 @@ impl BlendshapeRig {
             deltas,
             mapped: [true; NUM_LANDMARKS],
             mesh: None,
+            contour: None,
         }
     }
 }
