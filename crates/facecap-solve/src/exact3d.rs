@@ -634,6 +634,20 @@ impl Exact3dSolver {
     }
 
     fn pose_points(&self, cw: &ContourWork, e: &[f64], out: &mut [Vector3<f64>]) {
+        if self.contour.is_empty() {
+            // no contour slot: every point is the rig's own
+            let n = self.n;
+            for (j, o) in out.iter_mut().enumerate() {
+                let mut p = self.neutral[j];
+                for (k, &w) in e.iter().enumerate() {
+                    if w != 0.0 {
+                        p += self.deltas[j * n + k] * w;
+                    }
+                }
+                *o = p;
+            }
+            return;
+        }
         for (j, o) in out.iter_mut().enumerate() {
             let mut p = self.point_neutral(cw, j);
             for (&d, &w) in self.point_deltas(cw, j).iter().zip(e) {
