@@ -196,6 +196,10 @@ fn commands_agree_on_their_shared_outputs() {
                     x == "nan" || x.parse::<f64>().unwrap() == 0.0,
                     "solve has no gaze signal: {h} = {x}"
                 );
+            } else if h.starts_with("eyeBlink") {
+                // capture damps eyeBlink where the image shows the iris; solve has no image
+                let (x, y) = (x.parse::<f64>().unwrap(), y.parse::<f64>().unwrap());
+                assert!(x >= y - 1e-12, "{h}: solve {x} below capture {y}");
             } else {
                 assert_eq!(x, y, "weights.csv column {h}: solve vs capture");
             }
@@ -286,25 +290,43 @@ fn animation_glb_moves_the_head_and_livelink_follows_the_pose() {
         // keys on whole frames at the video's rate
         assert!((f64::from(*t) * fps - i as f64).abs() < 1e-3, "key {i} at {t} s");
     }
-    // With the built-in rig (no gaze shapes) solve reproduces every file of capture.
+    // With the built-in rig (no gaze shapes) solve reproduces capture's files, except the
+    // eyeBlink columns: capture damps them where the image shows the iris, solve has no
+    // image (so they are compared as solve >= capture, and animation.glb, which carries
+    // them, is not compared byte for byte; nor are the posed model's eye points in
+    // openface.csv).
     run_ok(
         facecap()
             .args(["solve", "--quiet", "--width", "480", "--height", "480", "--out"])
             .arg(dir.path().join("s"))
             .arg(cap.join("landmarks.csv")),
     );
-    for f in [
-        "pose.csv",
-        "weights.csv",
-        "openface.csv",
-        "livelink.csv",
-        "animation.glb",
-    ] {
-        assert_eq!(
-            std::fs::read(dir.path().join("s").join(f)).unwrap(),
-            std::fs::read(cap.join(f)).unwrap(),
-            "{f}: solve vs capture"
-        );
+    for f in ["pose.csv", "weights.csv", "openface.csv", "livelink.csv"] {
+        let (a, b) = (read(&dir.path().join("s").join(f)), read(&cap.join(f)));
+        assert_eq!(a.lines().count(), b.lines().count(), "{f}: rows, solve vs capture");
+        let head: Vec<String> = b.lines().next().unwrap().split(',').map(str::to_string).collect();
+        assert_eq!(a.lines().next(), b.lines().next(), "{f}: header");
+        for (ra, rb) in a.lines().zip(b.lines()).skip(1) {
+            for ((h, x), y) in head.iter().zip(ra.split(',')).zip(rb.split(',')) {
+                let h = h.trim();
+                let blink = h.to_ascii_lowercase().contains("blink") || h.starts_with("AU45");
+                // the posed model's eye points (OpenFace's 3D landmarks 36-47) move with eyeBlink
+                let eye_point = ["X_", "Y_", "Z_"].iter().any(|p| {
+                    h.strip_prefix(p)
+                        .and_then(|i| i.parse::<usize>().ok())
+                        .is_some_and(|i| (36..48).contains(&i))
+                });
+                if eye_point {
+                    continue;
+                }
+                if blink {
+                    let (x, y) = (x.trim().parse::<f64>().unwrap(), y.trim().parse::<f64>().unwrap());
+                    assert!(x >= y - 1e-9, "{f} {h}: solve {x} below capture {y}");
+                } else {
+                    assert_eq!(x, y, "{f} column {h}: solve vs capture");
+                }
+            }
+        }
     }
     let (_, still, _) = animation_channels(&dir.path().join("b/liveportrait_d18/animation.glb"));
     assert_eq!(still, ["MorphTargetWeights"]);
