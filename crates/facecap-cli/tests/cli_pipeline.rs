@@ -34,6 +34,44 @@ fn header(path: &Path) -> String {
 }
 
 /// The column `name` of a facecap CSV.
+/// `facecap solve`'s CSV (from a landmarks CSV) against `facecap capture`'s (from the
+/// video), column for column: equal, except what only the images carry. Gaze shapes
+/// (`eyeLook*`) are 0 or NaN in solve; eyeBlink (and livelink's EyeBlink, OpenFace's AU45),
+/// which capture damps where the image shows the iris, is never lower in solve; the posed
+/// model's eye points (OpenFace's 3D landmarks 36-47) move with it and are skipped.
+fn solve_agrees_with_capture(file: &str, solve: &str, capture: &str) {
+    assert_eq!(
+        solve.lines().count(),
+        capture.lines().count(),
+        "{file}: rows, solve vs capture"
+    );
+    assert_eq!(solve.lines().next(), capture.lines().next(), "{file}: header");
+    let head: Vec<&str> = capture.lines().next().unwrap().split(',').map(str::trim).collect();
+    for (a, b) in solve.lines().zip(capture.lines()).skip(1) {
+        for ((h, x), y) in head.iter().zip(a.split(',')).zip(b.split(',')) {
+            let eye_point = ["X_", "Y_", "Z_"].iter().any(|p| {
+                h.strip_prefix(p)
+                    .and_then(|i| i.parse::<usize>().ok())
+                    .is_some_and(|i| (36..48).contains(&i))
+            });
+            if eye_point {
+                continue;
+            }
+            if h.starts_with("eyeLook") {
+                assert!(
+                    x == "nan" || x.parse::<f64>().unwrap() == 0.0,
+                    "{file}: solve has no gaze signal: {h} = {x}"
+                );
+            } else if h.to_ascii_lowercase().contains("blink") || h.starts_with("AU45") {
+                let (x, y) = (x.trim().parse::<f64>().unwrap(), y.trim().parse::<f64>().unwrap());
+                assert!(x >= y - 1e-12, "{file} {h}: solve {x} below capture {y}");
+            } else {
+                assert_eq!(x, y, "{file} column {h}: solve vs capture");
+            }
+        }
+    }
+}
+
 fn column(path: &Path, name: &str) -> Vec<f64> {
     let text = read(path);
     let mut lines = text.lines();
@@ -189,22 +227,7 @@ fn commands_agree_on_their_shared_outputs() {
         head.iter().any(|h| h.starts_with("eyeLook")),
         "the ICT rig has gaze shapes"
     );
-    for (a, b) in sw.lines().zip(cw.lines()).skip(1) {
-        for ((h, x), y) in head.iter().zip(a.split(',')).zip(b.split(',')) {
-            if h.starts_with("eyeLook") {
-                assert!(
-                    x == "nan" || x.parse::<f64>().unwrap() == 0.0,
-                    "solve has no gaze signal: {h} = {x}"
-                );
-            } else if h.starts_with("eyeBlink") {
-                // capture damps eyeBlink where the image shows the iris; solve has no image
-                let (x, y) = (x.parse::<f64>().unwrap(), y.parse::<f64>().unwrap());
-                assert!(x >= y - 1e-12, "{h}: solve {x} below capture {y}");
-            } else {
-                assert_eq!(x, y, "weights.csv column {h}: solve vs capture");
-            }
-        }
-    }
+    solve_agrees_with_capture("weights.csv", &sw, &cw);
     let rx = column(&cap.join("pose.csv"), "pose_Rx");
     assert!(
         rx.iter().all(|r| r.is_finite() && r.abs() < 1.0),
@@ -302,31 +325,7 @@ fn animation_glb_moves_the_head_and_livelink_follows_the_pose() {
             .arg(cap.join("landmarks.csv")),
     );
     for f in ["pose.csv", "weights.csv", "openface.csv", "livelink.csv"] {
-        let (a, b) = (read(&dir.path().join("s").join(f)), read(&cap.join(f)));
-        assert_eq!(a.lines().count(), b.lines().count(), "{f}: rows, solve vs capture");
-        let head: Vec<String> = b.lines().next().unwrap().split(',').map(str::to_string).collect();
-        assert_eq!(a.lines().next(), b.lines().next(), "{f}: header");
-        for (ra, rb) in a.lines().zip(b.lines()).skip(1) {
-            for ((h, x), y) in head.iter().zip(ra.split(',')).zip(rb.split(',')) {
-                let h = h.trim();
-                let blink = h.to_ascii_lowercase().contains("blink") || h.starts_with("AU45");
-                // the posed model's eye points (OpenFace's 3D landmarks 36-47) move with eyeBlink
-                let eye_point = ["X_", "Y_", "Z_"].iter().any(|p| {
-                    h.strip_prefix(p)
-                        .and_then(|i| i.parse::<usize>().ok())
-                        .is_some_and(|i| (36..48).contains(&i))
-                });
-                if eye_point {
-                    continue;
-                }
-                if blink {
-                    let (x, y) = (x.trim().parse::<f64>().unwrap(), y.trim().parse::<f64>().unwrap());
-                    assert!(x >= y - 1e-9, "{f} {h}: solve {x} below capture {y}");
-                } else {
-                    assert_eq!(x, y, "{f} column {h}: solve vs capture");
-                }
-            }
-        }
+        solve_agrees_with_capture(f, &read(&dir.path().join("s").join(f)), &read(&cap.join(f)));
     }
     let (_, still, _) = animation_channels(&dir.path().join("b/liveportrait_d18/animation.glb"));
     assert_eq!(still, ["MorphTargetWeights"]);
