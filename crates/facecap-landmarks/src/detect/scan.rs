@@ -212,6 +212,8 @@ pub struct ScanScratch {
     rowpass: Vec<f32>,
     acc: Vec<f32>,
     fast: Vec<f32>,
+    /// Area positions `(r, j)` whose fast score is near or above the threshold.
+    near: Vec<(usize, usize)>,
 }
 
 /// [`candidates`] recomputes a window's score in dlib's float association when the
@@ -281,21 +283,18 @@ pub fn candidates(
         c0: fw / 2,
         c1: w - (fw - 1) / 2,
     };
-    fast_scores_dispatch(bank, feats, area, scratch);
-    let nc = area.c1 - area.c0;
-    let stride = fast_stride(bank, nc);
+    let layout = fast_scores_dispatch(bank, feats, area, scratch);
     let tail = simd_end(area.c0, area.c1);
     let cut = thresh - EXACT_RECHECK_MARGIN;
-    for r in area.r0..area.r1 {
-        let row = &scratch.fast[(r - area.r0) * stride..(r - area.r0) * stride + nc];
-        for (j, &v) in row.iter().enumerate() {
-            if f64::from(v) >= cut {
-                let c = area.c0 + j;
-                let s = exact_score_at(bank, feats, tail, r, c);
-                if f64::from(s) >= thresh {
-                    out.push(Hit { r, c, score: s });
-                }
-            }
+    scratch.near.clear();
+    layout.push_at_least(&scratch.fast, cut, &mut scratch.near);
+    // row-major order, as dlib scans
+    scratch.near.sort_unstable();
+    for &(r, j) in &scratch.near {
+        let (r, c) = (area.r0 + r, area.c0 + j);
+        let s = exact_score_at(bank, feats, tail, r, c);
+        if f64::from(s) >= thresh {
+            out.push(Hit { r, c, score: s });
         }
     }
     Some(area)
@@ -321,13 +320,80 @@ pub fn exact_score_at(bank: &FilterBank, feats: &FhogImage, tail: usize, r: usiz
     total
 }
 
-/// Fills `scratch.fast` (rows `area.r0..r1` x columns `area.c0..c1`, compact, row
-/// stride [`fast_stride`]) with the fast scores: the AVX2 + FMA kernel for 10-tap
-/// filters when the CPU has them ([`FastV3`]), else the generic `pulp` pass.
-fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratch: &mut ScanScratch) {
+/// Where [`candidates`]' fast pass leaves the score of area row `r`, column `j`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum FastLayout {
+    /// Row-major, `nc` values per row ([`FastScores`]).
+    Rows { nc: usize, nr: usize },
+    /// Blocks of 8 columns one after the other, each `nr` rows of 8 lanes; the last
+    /// block holds columns `nc - 8..nc` (it overlaps the one before it) ([`FastV3`]).
+    Blocks { nc: usize, nr: usize },
+}
+
+impl FastLayout {
+    /// Index of the score of area row `r`, column `j`.
+    #[cfg(test)]
+    fn index(self, r: usize, j: usize) -> usize {
+        match self {
+            FastLayout::Rows { nc, .. } => r * nc + j,
+            FastLayout::Blocks { nc, nr } => {
+                let last = nc.div_ceil(V3_LANES) - 1;
+                let (b, lane) = if j >= last * V3_LANES {
+                    (last, j + V3_LANES - nc)
+                } else {
+                    (j / V3_LANES, j % V3_LANES)
+                };
+                (b * nr + r) * V3_LANES + lane
+            }
+        }
+    }
+
+    /// Appends `(r, j)` of every score `>= cut` (each position once, in no particular
+    /// order).
+    fn push_at_least(self, fast: &[f32], cut: f64, out: &mut Vec<(usize, usize)>) {
+        match self {
+            FastLayout::Rows { nc, nr } => {
+                for (r, row) in fast[..nr * nc].chunks_exact(nc).enumerate() {
+                    for (j, &v) in row.iter().enumerate() {
+                        if f64::from(v) >= cut {
+                            out.push((r, j));
+                        }
+                    }
+                }
+            }
+            FastLayout::Blocks { nc, nr } => {
+                let nb = nc.div_ceil(V3_LANES);
+                for (b, block) in fast[..nb * nr * V3_LANES].chunks_exact(nr * V3_LANES).enumerate() {
+                    // first column of the block, first lane not already in the block before
+                    let (col0, lane0) = if b + 1 == nb {
+                        (nc - V3_LANES, nb * V3_LANES - nc)
+                    } else {
+                        (b * V3_LANES, 0)
+                    };
+                    for (r, lanes) in block.chunks_exact(V3_LANES).enumerate() {
+                        if lanes.iter().all(|&v| f64::from(v) < cut) {
+                            continue;
+                        }
+                        for (l, &v) in lanes.iter().enumerate().skip(lane0) {
+                            if f64::from(v) >= cut {
+                                out.push((r, col0 + l));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Fills `scratch.fast` (rows `area.r0..r1` x columns `area.c0..c1`, laid out as the
+/// returned [`FastLayout`] says) with the fast scores: the AVX2 + FMA kernel for
+/// 10-tap filters when the CPU has them ([`FastV3`]), else the generic `pulp` pass.
+fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratch: &mut ScanScratch) -> FastLayout {
+    let (nc, nr) = (area.c1 - area.c0, area.r1 - area.r0);
     #[cfg(target_arch = "x86_64")]
     if let Some(v3) = pulp::x86::V3::try_new() {
-        if bank.fw == TAPS && bank.fh == TAPS && area.c1 - area.c0 >= V3_LANES {
+        if bank.fw == TAPS && bank.fh == TAPS && nc >= V3_LANES {
             pulp::Simd::vectorize(
                 v3,
                 FastV3 {
@@ -339,7 +405,7 @@ fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratc
                     out: &mut scratch.fast,
                 },
             );
-            return;
+            return FastLayout::Blocks { nc, nr };
         }
     }
     pulp::Arch::new().dispatch(FastScores {
@@ -349,17 +415,7 @@ fn fast_scores_dispatch(bank: &FilterBank, feats: &FhogImage, area: Area, scratc
         rowpass: &mut scratch.rowpass,
         out: &mut scratch.fast,
     });
-}
-
-/// Row stride of `scratch.fast` for an area `nc` columns wide: `nc` rounded up to
-/// whole 8-lane blocks when [`FastV3`] runs, else `nc`.
-fn fast_stride(bank: &FilterBank, nc: usize) -> usize {
-    #[cfg(target_arch = "x86_64")]
-    if pulp::x86::V3::is_available() && bank.fw == TAPS && bank.fh == TAPS && nc >= V3_LANES {
-        return nc.div_ceil(V3_LANES) * V3_LANES;
-    }
-    let _ = bank;
-    nc
+    FastLayout::Rows { nc, nr }
 }
 
 /// Filter taps the AVX2 kernel is specialised for (dlib's 10 x 10 cell windows).
@@ -368,10 +424,22 @@ const TAPS: usize = 10;
 /// f32 lanes of an AVX register.
 const V3_LANES: usize = 8;
 
+/// Input columns of one 8-column block of a 10-tap row pass.
+#[cfg(target_arch = "x86_64")]
+const SPAN: usize = V3_LANES + TAPS - 1;
+
+/// Output rows of one step of the column pass (they share `TAPS - 1` input rows; with
+/// the taps and one input row that fills the 16 AVX registers).
+#[cfg(target_arch = "x86_64")]
+const COL_ROWS: usize = 4;
+
 /// The fast pass for 10 x 10 filters on AVX2 + FMA: the same sums as [`FastScores`],
-/// with the ten taps unrolled over fixed-size windows (no bounds checks in the inner
-/// loops), rows of `rowpass` and `out` padded to whole 8-lane blocks, and the row
-/// pass's last block overlapping the one before it (its writes are idempotent).
+/// computed per block of 8 output columns (the last block shifted left to end at the
+/// area's last column): per term, the row pass of the block's columns over the rows
+/// that are not entirely zero into a column of vectors (`rowpass`, one vector per
+/// fHOG row, stays in L1), then the column pass from it, four output rows at a time,
+/// into the block's scores (`out`, block after block, one vector per row). One
+/// pointer and constant offsets per loop, taps in registers.
 #[cfg(target_arch = "x86_64")]
 struct FastV3<'a> {
     v3: pulp::x86::V3,
@@ -408,12 +476,70 @@ fn nonzero_rows(feats: &FhogImage) -> [(usize, usize); PLANES] {
     })
 }
 
-/// One vector into `d[at..at + 8]`.
+/// Row pass of one block: `tmp[y] = sum_k fr[k] plane[y][off + k..off + k + 8]` for
+/// rows `y0..y1`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn st8(d: &mut [f32], at: usize, v: pulp::f32x8) {
-    let a: [f32; V3_LANES] = bytemuck::cast(v);
-    d[at..at + V3_LANES].copy_from_slice(&a);
+#[allow(clippy::too_many_arguments)] // plane geometry, taps and output, all needed
+fn row_pass_block(
+    v3: pulp::x86::V3,
+    plane: &[f32],
+    w: usize,
+    off: usize,
+    (y0, y1): (usize, usize),
+    fr: &[pulp::f32x8; TAPS],
+    tmp: &mut [pulp::f32x8],
+) {
+    for (y, t) in (y0..y1).zip(&mut tmp[y0..y1]) {
+        let s = &plane[y * w + off..y * w + off + SPAN];
+        // two chains of dependent multiply-adds (even and odd taps) instead of one
+        let mut even = v3.mul_f32x8(ld8(s, 0), fr[0]);
+        let mut odd = v3.mul_f32x8(ld8(s, 1), fr[1]);
+        for k in (2..TAPS).step_by(2) {
+            even = v3.mul_add_f32x8(ld8(s, k), fr[k], even);
+            odd = v3.mul_add_f32x8(ld8(s, k + 1), fr[k + 1], odd);
+        }
+        *t = v3.add_f32x8(even, odd);
+    }
+}
+
+/// Column pass of one block: `o[r] (+)= sum_m fc[m] tmp[r + m]` (`=` for the first
+/// term), [`COL_ROWS`] output rows at a time.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn col_pass_block<const FIRST: bool>(
+    v3: pulp::x86::V3,
+    tmp: &[pulp::f32x8],
+    fc: &[pulp::f32x8; TAPS],
+    o: &mut [pulp::f32x8],
+) {
+    let zero = v3.splat_f32x8(0.0);
+    let nr = o.len();
+    let mut r = 0;
+    while r + COL_ROWS <= nr {
+        let x = &tmp[r..r + TAPS + COL_ROWS - 1];
+        let oo = &mut o[r..r + COL_ROWS];
+        let mut acc: [pulp::f32x8; COL_ROWS] = std::array::from_fn(|k| if FIRST { zero } else { oo[k] });
+        for m in 0..TAPS + COL_ROWS - 1 {
+            let xm = x[m];
+            for (k, a) in acc.iter_mut().enumerate() {
+                if m >= k && m - k < TAPS {
+                    *a = v3.mul_add_f32x8(xm, fc[m - k], *a);
+                }
+            }
+        }
+        oo.copy_from_slice(&acc);
+        r += COL_ROWS;
+    }
+    while r < nr {
+        let x = &tmp[r..r + TAPS];
+        let mut acc = if FIRST { zero } else { o[r] };
+        for m in 0..TAPS {
+            acc = v3.mul_add_f32x8(x[m], fc[m], acc);
+        }
+        o[r] = acc;
+        r += 1;
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -431,85 +557,54 @@ impl pulp::WithSimd for FastV3<'_> {
             out,
         } = self;
         let (w, h) = (feats.width, feats.height);
-        let (hr, hc) = (bank.fh / 2, bank.fw / 2);
+        let hc = bank.fw / 2;
         let nc = area.c1 - area.c0;
         let nr = area.r1 - area.r0;
-        let stride = nc.div_ceil(V3_LANES) * V3_LANES;
-        out.clear();
-        out.resize(nr * stride, 0.0);
+        let nb = nc.div_ceil(V3_LANES);
+        let len = nb * nr * V3_LANES;
+        if out.len() != len {
+            // (every value is written by the first term)
+            out.clear();
+            out.resize(len, 0.0);
+        }
         rowpass.clear();
-        rowpass.resize(h * stride, 0.0);
-        let span = V3_LANES + TAPS - 1;
+        rowpass.resize(nb * h * V3_LANES, 0.0);
+        let out: &mut [pulp::f32x8] = bytemuck::cast_slice_mut(&mut out[..]);
+        let tmp: &mut [pulp::f32x8] = bytemuck::cast_slice_mut(&mut rowpass[..]);
         let zero = v3.splat_f32x8(0.0);
-        let blocks = nc.div_ceil(V3_LANES);
         let live_rows = nonzero_rows(feats);
+        // rows of every block of `tmp` that may hold non-zero values
+        let mut dirty = (0usize, 0usize);
+        let mut first = true;
         for term in &bank.terms {
-            let plane = feats.plane(term.plane);
-            let fr: [pulp::f32x8; TAPS] = std::array::from_fn(|k| v3.splat_f32x8(term.row[k]));
-            // row pass: rowpass[y][j] = sum_k row[k] H[y][c0 - hc + j + k], only on the
-            // rows that are not entirely zero (the fHOG padding rows give zeros)
             let (y0, y1) = live_rows[term.plane];
-            rowpass[..y0 * stride].fill(0.0);
-            rowpass[y1 * stride..].fill(0.0);
-            for y in y0..y1 {
-                let src = &plane[y * w + area.c0 - hc..(y + 1) * w];
-                let dst = &mut rowpass[y * stride..y * stride + nc];
-                // two blocks at a time (independent accumulators), the last block
-                // shifted left to end at `nc`
-                let mut b = 0;
-                while b < blocks {
-                    let ja = (b * V3_LANES).min(nc - V3_LANES);
-                    let jb = ((b + 1) * V3_LANES).min(nc - V3_LANES);
-                    let (wa, wb) = (&src[ja..ja + span], &src[jb..jb + span]);
-                    let mut acc_a = zero;
-                    let mut acc_b = zero;
-                    for k in 0..TAPS {
-                        acc_a = v3.mul_add_f32x8(ld8(wa, k), fr[k], acc_a);
-                        acc_b = v3.mul_add_f32x8(ld8(wb, k), fr[k], acc_b);
-                    }
-                    st8(dst, ja, acc_a);
-                    st8(dst, jb, acc_b);
-                    b += 2;
-                }
+            if y0 == y1 && !first {
+                // an all-zero plane adds zeros
+                continue;
             }
-            // column pass: out[r][j] += sum_m col[m] rowpass[r - hr + m][j], two output
-            // rows at a time (they share nine input rows; the taps are splat only here
-            // so that they stay in registers)
+            let plane = feats.plane(term.plane);
+            // row passes of all blocks, then the column passes (so that only one set
+            // of taps is live at a time)
+            let fr: [pulp::f32x8; TAPS] = std::array::from_fn(|k| v3.splat_f32x8(term.row[k]));
+            for (b, t) in tmp.chunks_exact_mut(h).enumerate() {
+                // rows outside `y0..y1` are zero rows of the plane: zero them in `tmp`
+                if dirty.0 < dirty.1 {
+                    t[dirty.0..y0.clamp(dirty.0, dirty.1)].fill(zero);
+                    t[y1.clamp(dirty.0, dirty.1)..dirty.1].fill(zero);
+                }
+                let j = (b * V3_LANES).min(nc - V3_LANES);
+                row_pass_block(v3, plane, w, area.c0 - hc + j, (y0, y1), &fr, t);
+            }
+            dirty = (y0, y1);
             let fc: [pulp::f32x8; TAPS] = std::array::from_fn(|m| v3.splat_f32x8(term.col[m]));
-            let mut r = 0;
-            while r + 1 < nr {
-                let top = area.r0 + r - hr;
-                let rows = &rowpass[top * stride..(top + TAPS + 1) * stride];
-                let (o0, o1) = out[r * stride..(r + 2) * stride].split_at_mut(stride);
-                for j in (0..stride).step_by(V3_LANES) {
-                    let mut acc0 = ld8(o0, j);
-                    let mut acc1 = ld8(o1, j);
-                    let x = ld8(rows, j);
-                    acc0 = v3.mul_add_f32x8(x, fc[0], acc0);
-                    for m in 1..TAPS {
-                        let x = ld8(rows, m * stride + j);
-                        acc0 = v3.mul_add_f32x8(x, fc[m], acc0);
-                        acc1 = v3.mul_add_f32x8(x, fc[m - 1], acc1);
-                    }
-                    let x = ld8(rows, TAPS * stride + j);
-                    acc1 = v3.mul_add_f32x8(x, fc[TAPS - 1], acc1);
-                    st8(o0, j, acc0);
-                    st8(o1, j, acc1);
-                }
-                r += 2;
-            }
-            if r < nr {
-                let top = area.r0 + r - hr;
-                let rows = &rowpass[top * stride..(top + TAPS) * stride];
-                let o = &mut out[r * stride..(r + 1) * stride];
-                for j in (0..stride).step_by(V3_LANES) {
-                    let mut acc = ld8(o, j);
-                    for m in 0..TAPS {
-                        acc = v3.mul_add_f32x8(ld8(rows, m * stride + j), fc[m], acc);
-                    }
-                    st8(o, j, acc);
+            for (o, t) in out.chunks_exact_mut(nr).zip(tmp.chunks_exact(h)) {
+                if first {
+                    col_pass_block::<true>(v3, t, &fc, o);
+                } else {
+                    col_pass_block::<false>(v3, t, &fc, o);
                 }
             }
+            first = false;
         }
     }
 }
@@ -1008,10 +1103,9 @@ mod tests {
             let mut scratch = ScanScratch::default();
             let mut sal = Vec::new();
             let area = saliency(&bank, &feats, &mut scratch, &mut sal).unwrap();
-            let nc = area.c1 - area.c0;
+            let (nc, nr) = (area.c1 - area.c0, area.r1 - area.r0);
             for portable in [false, true] {
-                let stride = if portable { nc } else { fast_stride(&bank, nc) };
-                if portable {
+                let layout = if portable {
                     let op = FastScores {
                         bank: &bank,
                         feats: &feats,
@@ -1020,13 +1114,14 @@ mod tests {
                         out: &mut scratch.fast,
                     };
                     pulp::Simd::vectorize(pulp::Scalar, op);
+                    FastLayout::Rows { nc, nr }
                 } else {
-                    fast_scores_dispatch(&bank, &feats, area, &mut scratch);
-                }
+                    fast_scores_dispatch(&bank, &feats, area, &mut scratch)
+                };
                 for r in area.r0..area.r1 {
                     for c in area.c0..area.c1 {
-                        let d =
-                            f64::from(scratch.fast[(r - area.r0) * stride + c - area.c0]) - f64::from(sal[r * w + c]);
+                        let fast = scratch.fast[layout.index(r - area.r0, c - area.c0)];
+                        let d = f64::from(fast) - f64::from(sal[r * w + c]);
                         worst = worst.max(d.abs());
                     }
                 }
