@@ -79,7 +79,7 @@ impl Lids {
         let c0 = p[0];
         let (dx, dy) = (p[3].0 - c0.0, p[3].1 - c0.1);
         let len = dx.hypot(dy);
-        if !(len > 1.0) {
+        if len.is_nan() || len <= 1.0 {
             return None;
         }
         let e = (dx / len, dy / len);
