@@ -10,7 +10,8 @@
 //!    pi(pose_t, X_i(w_t)) - pi(pose_0, X_i(0))`.
 //! 3. The photo is warped piecewise-affinely (Delaunay over the landmarks plus fixed
 //!    anchors on an ellipse around the face and on the image border) so the landmarks
-//!    land on the targets, and the frames are written as a 4:4:4 Y4M video.
+//!    land on the targets; the eyes close as real eyes do (the eyeball stays, the lids
+//!    cover it, see [`crate::eyelid`]), and the frames are written as a 4:4:4 Y4M video.
 //! 4. The truth goes beside it: `<stem>.truth.csv` (per frame: 68 landmarks, the head
 //!    rotation relative to frame 0 as `rel_Rx, rel_Ry, rel_Rz` in radians with
 //!    `R = Rz Ry Rx` in model axes, and the weights by name). `facecap capture` finds it
@@ -27,6 +28,7 @@ use image::{GrayImage, RgbImage};
 use nalgebra::{Point2, Point3, Rotation3, Vector3};
 
 use crate::default_rig::{DEFAULT_SHAPES, MEAN_FACE_68_CM};
+use crate::eyelid::{close_eye, cover_eyes, eye_points, Affine, Lids, EYES};
 
 /// Arguments of `facecap synth`.
 #[derive(Debug, clap::Args)]
@@ -204,6 +206,10 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         (0.0, h / 2.0),
     ]);
     let tris = facecap_geom::delaunay::delaunay(&src_pts);
+    // Closing eyes: the warp stretches lid skin over the eyes (`covered`), the eyeball
+    // of the photo is drawn back inside each frame's lid opening (see `crate::eyelid`).
+    let photo_lids: Vec<Option<Lids>> = (0..EYES.len()).map(|e| Lids::new(&eye_points(&src_pts, e))).collect();
+    let covered = cover_eyes(&rgb, &photo_lids.iter().flatten().copied().collect::<Vec<_>>());
 
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let stem = "synth";
@@ -221,14 +227,20 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         let r_delta = Rotation3::from_euler_angles(rx, ry, rz);
         let pts = rig_points(&wts, &rig);
         let mut dst = src_pts.clone();
+        // The landmarks moved by the head alone (all weights zero).
+        let mut rest = src_pts.clone();
         for i in 0..NUM_LANDMARKS {
-            let moved = Point3::from(r_delta * (pts[i].coords - centre) + centre);
-            let p = ModelToCamera::project(&pose0, &k, &moved)
-                .ok_or_else(|| anyhow::anyhow!("synthetic head left the camera's view at frame {f}"))?;
-            dst[i] = (
-                lms.points[i].x + p.x - base_proj[i].x,
-                lms.points[i].y + p.y - base_proj[i].y,
-            );
+            let image_of = |x: &Point3<f64>| {
+                let moved = Point3::from(r_delta * (x.coords - centre) + centre);
+                let p = ModelToCamera::project(&pose0, &k, &moved)
+                    .ok_or_else(|| anyhow::anyhow!("synthetic head left the camera's view at frame {f}"))?;
+                anyhow::Ok((
+                    lms.points[i].x + p.x - base_proj[i].x,
+                    lms.points[i].y + p.y - base_proj[i].y,
+                ))
+            };
+            dst[i] = image_of(&pts[i])?;
+            rest[i] = image_of(&neutral[i])?;
             values[i] = dst[i].0;
             values[NUM_LANDMARKS + i] = dst[i].1;
         }
@@ -237,7 +249,13 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         values[2 * NUM_LANDMARKS + 2] = rz;
         values[2 * NUM_LANDMARKS + 3..].copy_from_slice(&wts);
         let mut img = RgbImage::new(1, 1);
-        crate::warp::warp_piecewise_affine(&rgb, &src_pts, &dst, &tris, &mut img);
+        crate::warp::warp_piecewise_affine(&covered, &src_pts, &dst, &tris, &mut img);
+        for (e, photo_l) in photo_lids.iter().enumerate() {
+            let (rest_e, photo_e) = (eye_points(&rest, e), eye_points(&src_pts, e));
+            if let (Some(l), Some(a)) = (photo_l, Affine::fit(&rest_e, &photo_e)) {
+                close_eye(&mut img, &rgb, l, &eye_points(&dst, e), &a);
+            }
+        }
         images.push(img);
         truth.write_row(&FrameRow {
             frame: f as u64,

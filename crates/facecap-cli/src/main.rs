@@ -31,6 +31,7 @@ mod cmd_tensor_fit;
 mod cmd_transfer;
 mod default_rig;
 mod ert_flag;
+mod eyelid;
 mod live_window;
 mod neutral;
 mod out;
