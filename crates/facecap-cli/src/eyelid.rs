@@ -23,8 +23,7 @@ use image::{Rgb, RgbImage};
 
 use crate::warp::sample_bilinear;
 
-/// Landmark indices of each eye in dlib order: outer/inner corner, upper lid, corner, lower lid.
-pub const EYES: [[usize; 6]; 2] = [[36, 37, 38, 39, 40, 41], [42, 43, 44, 45, 46, 47]];
+pub use facecap_core::landmarks::EYES;
 
 /// How far above the upper lid edge the skin for the lid starts, in eye widths
 /// (past the lashes).

@@ -25,6 +25,22 @@ pub const NUM_LANDMARKS: usize = 68;
 pub const OUTER_EYE_RIGHT: usize = 36;
 /// Index of the left eye's outer corner (image right for a frontal face).
 pub const OUTER_EYE_LEFT: usize = 45;
+/// The six points of each eye, right eye (image left) first, in iBUG order: corner, upper
+/// lid (two points), corner, lower lid (two points, walking back), so point 1 faces 5 and
+/// 2 faces 4.
+pub const EYES: [[usize; 6]; 2] = [[36, 37, 38, 39, 40, 41], [42, 43, 44, 45, 46, 47]];
+
+/// Eye aspect ratio of six eye points in the order of [`EYES`] (or any walk around the
+/// eye where point 1 faces 5 and 2 faces 4): the mean of the two lid distances over the
+/// corner distance `|p3 - p0|`. NaN when the corners coincide or a point is not finite.
+pub fn eye_aspect_ratio(pts: &[Point2<f64>; 6]) -> f64 {
+    let l = (pts[3] - pts[0]).norm();
+    if l > 0.0 {
+        ((pts[1] - pts[5]).norm() + (pts[2] - pts[4]).norm()) / (2.0 * l)
+    } else {
+        f64::NAN
+    }
+}
 
 /// Named regions of the 68-point scheme.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -662,8 +662,7 @@ fn eye_frame(pts: &[Point2<f64>; 6], eye: Eye, p: &IrisParams, est: &mut EyeEsti
         Eye::Right => Vector2::new(-a.y, a.x),
         Eye::Left => Vector2::new(a.y, -a.x),
     };
-    // upper lid 1, 2 against lower lid 5, 4 (walk order: 1 faces 5, 2 faces 4)
-    est.opening = ((pts[1] - pts[5]).norm() + (pts[2] - pts[4]).norm()) / (2.0 * l);
+    est.opening = facecap_core::landmarks::eye_aspect_ratio(pts);
     if est.opening < p.min_opening {
         est.status = EyeStatus::Closed;
         return None;

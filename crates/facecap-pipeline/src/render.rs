@@ -57,8 +57,6 @@ const PORTRAIT_FILL: f64 = 0.92;
 const OUTER_LIP: [usize; 12] = [48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59];
 /// iBUG indices of the inner lip contour.
 pub const INNER_LIP: [usize; 8] = [60, 61, 62, 63, 64, 65, 66, 67];
-const RIGHT_EYE: [usize; 6] = [36, 37, 38, 39, 40, 41];
-const LEFT_EYE: [usize; 6] = [42, 43, 44, 45, 46, 47];
 
 /// How a render looks at the mesh.
 #[derive(Debug, Clone, Copy)]
@@ -194,7 +192,7 @@ impl RigRenderer {
             if let (Some(outer), inner) = (lm(&OUTER_LIP), lm(&INNER_LIP)) {
                 paint(&outer, inner.as_deref(), LIPS);
             }
-            for eye in [RIGHT_EYE, LEFT_EYE] {
+            for eye in facecap_core::landmarks::EYES {
                 if let Some(e) = lm(&eye) {
                     paint(&e, None, EYES);
                 }

@@ -31,7 +31,7 @@
 //! a free offset field with a ridge prior, so it works for any rig.
 
 use facecap_core::camera::Intrinsics;
-use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
+use facecap_core::landmarks::{eye_aspect_ratio, Landmarks68, EYES, NUM_LANDMARKS};
 use nalgebra::{Matrix2x3, Matrix3, Point3, Vector2, Vector3};
 
 use crate::error::{check_count, check_range, Error, Result};
@@ -190,20 +190,6 @@ type SolvedSample = (
     Vec<(usize, Vector3<f64>)>,
 );
 
-/// Opening of eye `e` (0: points 36-41, 1: 42-47): mean of the two upper-to-lower lid
-/// distances over the eye-corner distance of the tracked points (NaN when degenerate).
-fn eye_opening(l: &Landmarks68, e: usize) -> f64 {
-    let o = 36 + 6 * e;
-    let p = &l.points;
-    let width = (p[o] - p[o + 3]).norm();
-    let lids = 0.5 * ((p[o + 1] - p[o + 5]).norm() + (p[o + 2] - p[o + 4]).norm());
-    if width.is_finite() && width > 1e-9 {
-        lids / width
-    } else {
-        f64::NAN
-    }
-}
-
 /// Solves `frames` in order with `solver` (warm-started), returning poses and weights.
 fn solve_all(solver: &Exact3dSolver, frames: &[&Landmarks68]) -> Vec<Option<SolvedSample>> {
     let n = solver.num_shapes();
@@ -287,7 +273,10 @@ pub fn fit_subject_with_identity(
     // per eye, which sampled frames the eye's six points are fitted on
     let eye_frames: [Option<Vec<bool>>; 2] = std::array::from_fn(|e| {
         params.eye_open.map(|(lo, hi)| {
-            let open: Vec<f64> = sample.iter().map(|l| eye_opening(l, e)).collect();
+            let open: Vec<f64> = sample
+                .iter()
+                .map(|l| eye_aspect_ratio(&EYES[e].map(|i| l.points[i])))
+                .collect();
             let mut sorted: Vec<f64> = open.iter().copied().filter(|v| v.is_finite()).collect();
             sorted.sort_by(f64::total_cmp);
             if sorted.is_empty() {
