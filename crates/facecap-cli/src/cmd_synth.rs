@@ -21,6 +21,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use facecap_core::camera::{Intrinsics, ModelToCamera};
+use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 use facecap_geom::pnp::{solve_pnp, PnpParams};
 use facecap_io::csv::{landmark_columns, FrameCsvWriter, FrameRow};
@@ -135,12 +136,13 @@ pub fn truth_rotation(frame: u32, fps: u32) -> (f64, f64, f64) {
     )
 }
 
-fn rig_points(weights: &[f64], rig: &facecap_core::mesh::MorphMesh) -> Vec<Point3<f64>> {
+fn rig_points(weights: &[f64], rig: &facecap_core::mesh::MorphMesh, map: &LandmarkMap) -> Vec<Point3<f64>> {
     (0..NUM_LANDMARKS)
         .map(|i| {
             let mut p = Vector3::new(MEAN_FACE_68_CM[i][0], MEAN_FACE_68_CM[i][1], MEAN_FACE_68_CM[i][2]);
+            let v = map.vertices[i].map_or(0, |v| v as usize);
             for (t, w) in rig.targets.iter().zip(weights) {
-                p += t.deltas[i].cast::<f64>() * *w;
+                p += t.deltas[v].cast::<f64>() * *w;
             }
             Point3::from(p)
         })
@@ -172,9 +174,9 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
     let mut gray = GrayImage::new(rgb.width(), rgb.height());
     facecap_io::image_io::rgb_to_gray_into(&rgb, &mut gray);
     let lms = detect_landmarks(&gray)?.ok_or_else(|| anyhow::anyhow!("no face found in {}", photo.display()))?;
-    let (rig, _) = crate::default_rig::default_rig()?;
+    let (rig, map) = crate::default_rig::default_rig()?;
     let k = Intrinsics::default_for_frame(rgb.width(), rgb.height())?;
-    let neutral = rig_points(&vec![0.0; rig.targets.len()], &rig);
+    let neutral = rig_points(&vec![0.0; rig.targets.len()], &rig, &map);
     let (pose0, _) = solve_pnp(&neutral, &lms.points, &k, None, &PnpParams::default())?;
     let centre = neutral.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / neutral.len() as f64;
     let base_proj: Vec<Point2<f64>> = neutral
@@ -225,7 +227,7 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         let wts = truth_weights(f, fps, seed);
         let (rx, ry, rz) = truth_rotation(f, fps);
         let r_delta = Rotation3::from_euler_angles(rx, ry, rz);
-        let pts = rig_points(&wts, &rig);
+        let pts = rig_points(&wts, &rig, &map);
         let mut dst = src_pts.clone();
         // The landmarks moved by the head alone (all weights zero).
         let mut rest = src_pts.clone();

@@ -4,25 +4,29 @@
 //! * **Neutral landmarks**: a 68-point 3D mean face (iBUG order, centimetres, +Y up,
 //!   +Z out of the face). The numbers are the 68 landmark vertices of the ICT-FaceKit
 //!   generic neutral mesh (USC ICT, MIT licence), rounded to 0.1 mm.
-//! * **Dense mesh**: the 68 points and seven forehead/temple points are
-//!   Delaunay-triangulated in the frontal (x, y) plane, the triangles inside the inner
-//!   lip contour are left out (the mouth opening), each triangle is split 4-to-1 twice
-//!   (16 triangles each), and every new vertex gets its depth from a thin-plate spline
-//!   through those points, so the surface is smooth and passes exactly through the
-//!   landmarks. Vertices 0..67 are the landmarks themselves, so the landmark map is the
-//!   identity.
-//! * **Blendshapes**: 16 ARKit-named expression shapes (`jawOpen`, `mouthSmileLeft`, ...)
+//! * **Mesh**: MediaPipe's canonical face mesh (468 vertices, its triangles and texture
+//!   coordinates; Apache-2.0, read from the model cache, where `scripts/setup.sh` puts it),
+//!   aligned to the mean face by a similarity and warped by a 3D thin-plate spline so
+//!   that its 68 landmark vertices (`facecap_mesh::ibug68::IBUG68_FROM_MESH`) land exactly
+//!   on the mean face's points. The triangles across the inner lips are left out (the
+//!   mouth opening). Vertex `i` is face-mesh landmark `i`, so the mesh front end's points
+//!   are the rig's vertices.
+//! * **Blendshapes**: ARKit-named expression shapes (`jawOpen`, `mouthSmileLeft`, ...)
 //!   defined as 3D displacements of the 68 landmarks (FACS-style: which points move,
-//!   which way, by how many cm), spread piecewise-linearly over the landmark triangles
-//!   (a subdivision vertex moves as the mean of its edge's ends; a spline overshoots
-//!   between the nearly touching lips and folds the mesh when the mouth opens); the
-//!   forehead points stay. "Left" is the subject's left
-//!   (image right, +X).
+//!   which way, by how many cm) and, for shapes the landmarks do not carry (cheeks, nose
+//!   wings), of a few more mesh vertices; spread over the rest of the mesh harmonically
+//!   (`facecap_geom::harmonic`: every other vertex the weighted mean of its neighbours,
+//!   no overshoot) along the skin, without the triangles across the eye openings, so
+//!   one lid moves without the other, and the lips part along the mouth opening; the
+//!   forehead's edge stays. "Left" is the subject's left (image right, +X).
 
 use facecap_core::landmark_map::LandmarkMap;
 use facecap_core::mesh::{Mesh, MorphMesh, MorphTarget};
-use facecap_geom::delaunay::delaunay;
-use facecap_geom::tps::Tps;
+use facecap_geom::align::umeyama3;
+use facecap_geom::harmonic::Harmonic;
+use facecap_geom::tps::Tps3;
+use facecap_mesh::canonical::CanonicalMesh;
+use facecap_mesh::ibug68::IBUG68_FROM_MESH;
 use nalgebra::{Point3, Vector3};
 
 /// 3D mean face, iBUG-68 order, cm (see module docs).
@@ -97,36 +101,22 @@ pub const MEAN_FACE_68_CM: [[f64; 3]; 68] = [
     [-1.0692, -3.3797, 11.0401],
 ];
 
-/// Forehead and temple points (cm) above the brows, so the rig reads as a face and not
-/// as a mask cut off at the brows; not landmarks (vertices 68..), still in every shape.
-const FOREHEAD_CM: [[f64; 3]; 7] = [
-    [-6.9, 7.6, 5.4],
-    [-5.0, 9.9, 7.6],
-    [-2.5, 10.6, 9.9],
-    [0.0, 10.8, 10.6],
-    [2.5, 10.6, 9.9],
-    [5.0, 9.9, 7.6],
-    [6.9, 7.6, 5.4],
+/// The face mesh's inner lip ring (both lips' inner edges, corner to corner): the
+/// triangles spanning it close the mouth in the canonical mesh and are left out.
+const MESH_INNER_LIP: [usize; 20] = [
+    78, 191, 80, 81, 82, 13, 312, 311, 310, 415, 308, 324, 318, 402, 317, 14, 87, 178, 88, 95,
 ];
 
-/// iBUG indices of the inner lip contour, in order around the mouth.
-const INNER_LIP: [usize; 8] = [60, 61, 62, 63, 64, 65, 66, 67];
-
-/// Whether `p` is inside the polygon (even-odd rule).
-fn point_in_polygon(poly: &[(f64, f64)], p: (f64, f64)) -> bool {
-    let mut c = false;
-    let n = poly.len();
-    for i in 0..n {
-        let (a, b) = (poly[i], poly[(i + n - 1) % n]);
-        if (a.1 > p.1) != (b.1 > p.1) && p.0 < (b.0 - a.0) * (p.1 - a.1) / (b.1 - a.1) + a.0 {
-            c = !c;
-        }
-    }
-    c
-}
-
-/// Number of 4-to-1 subdivision passes of the landmark triangulation.
-const SUBDIVISIONS: usize = 2;
+/// The face mesh's eye openings (lid edges of each eye): their triangles are kept for
+/// drawing but carry no displacement from one lid to the other.
+const MESH_EYE_OPENINGS: [[usize; 16]; 2] = [
+    [
+        33, 7, 163, 144, 145, 153, 154, 155, 133, 173, 157, 158, 159, 160, 161, 246,
+    ],
+    [
+        263, 249, 390, 373, 374, 380, 381, 382, 362, 398, 384, 385, 386, 387, 388, 466,
+    ],
+];
 
 /// Names of the default rig's blendshapes (a subset of ARKit's 52).
 pub const DEFAULT_SHAPES: [&str; 16] = [
@@ -252,86 +242,84 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
     d
 }
 
-/// The default rig: dense mesh with 16 morph targets, and its identity landmark map.
+/// The default rig: the face mesh topology with 16 morph targets, and its landmark map.
 ///
 /// # Errors
-/// Only if the built-in data were degenerate (a bug), reported as an error.
+/// The canonical face mesh missing from the model cache (`scripts/setup.sh` puts it
+/// there) or damaged.
 pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
-    let mut base_points: Vec<[f64; 3]> = MEAN_FACE_68_CM.to_vec();
-    base_points.extend_from_slice(&FOREHEAD_CM);
-    let centres: Vec<(f64, f64)> = base_points.iter().map(|p| (p[0], p[1])).collect();
-    let inner_lip: Vec<(f64, f64)> = INNER_LIP.iter().map(|&i| centres[i]).collect();
-    // The mouth opening: triangles of the inner lip contour that lie inside it are left
-    // out, so an open mouth is a hole (the renderer shows a dark cavity behind it)
-    // instead of skin stretched and folded between the lips.
-    let mut tris: Vec<[u32; 3]> = delaunay(&centres)
-        .into_iter()
-        .filter(|t| {
-            let all_lip = t.iter().all(|&v| INNER_LIP.contains(&(v as usize)));
-            let c = t.iter().fold((0.0, 0.0), |a, &v| {
-                (a.0 + centres[v as usize].0 / 3.0, a.1 + centres[v as usize].1 / 3.0)
-            });
-            !(all_lip && point_in_polygon(&inner_lip, c))
+    let canon = facecap_mesh::canonical::canonical_mesh_from_cache()
+        .map_err(|e| anyhow::anyhow!("the built-in rig is made from the canonical face mesh: {e}"))?;
+    build_default_rig(&canon)
+}
+
+/// Builds the default rig from the canonical face mesh (module docs).
+///
+/// # Errors
+/// A degenerate mesh (the alignment or a fit fails).
+pub fn build_default_rig(canon: &CanonicalMesh) -> anyhow::Result<(MorphMesh, LandmarkMap)> {
+    let n = canon.positions.len();
+    if n != facecap_mesh::canonical::CANONICAL_VERTICES {
+        anyhow::bail!("canonical face mesh with {n} vertices, expected 468");
+    }
+    let lm_vertices = IBUG68_FROM_MESH;
+    // Neutral: the canonical face aligned (similarity) and warped (3D thin-plate spline)
+    // so that its 68 landmark vertices land exactly on the mean face.
+    let src: Vec<Point3<f64>> = lm_vertices.iter().map(|&v| Point3::from(canon.positions[v])).collect();
+    let dst: Vec<Point3<f64>> = MEAN_FACE_68_CM.iter().map(|&p| Point3::from(p)).collect();
+    let sim = umeyama3(&src, &dst, None, true)?;
+    let aligned: Vec<[f64; 3]> = canon
+        .positions
+        .iter()
+        .map(|&p| {
+            let q = sim.apply(&Point3::from(p));
+            [q.x, q.y, q.z]
         })
         .collect();
-    // Planar vertex positions (x, y) of the subdivided mesh, and each new vertex's
-    // parents (the ends of the edge it splits).
-    let mut xy = centres.clone();
-    let mut parents: Vec<(u32, u32)> = Vec::new();
-    for _ in 0..SUBDIVISIONS {
-        let mut mid = std::collections::HashMap::new();
-        let mut next = Vec::with_capacity(tris.len() * 4);
-        let mut midpoint = |a: u32, b: u32, xy: &mut Vec<(f64, f64)>| -> u32 {
-            let key = (a.min(b), a.max(b));
-            *mid.entry(key).or_insert_with(|| {
-                let (pa, pb) = (xy[a as usize], xy[b as usize]);
-                xy.push(((pa.0 + pb.0) / 2.0, (pa.1 + pb.1) / 2.0));
-                parents.push(key);
-                (xy.len() - 1) as u32
-            })
-        };
-        for [a, b, c] in tris {
-            let ab = midpoint(a, b, &mut xy);
-            let bc = midpoint(b, c, &mut xy);
-            let ca = midpoint(c, a, &mut xy);
-            next.extend_from_slice(&[[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
-        }
-        tris = next;
+    let centres: Vec<[f64; 3]> = lm_vertices.iter().map(|&v| aligned[v]).collect();
+    let warp = Tps3::fit(&centres, &MEAN_FACE_68_CM)
+        .ok_or_else(|| anyhow::anyhow!("default rig: degenerate landmark layout"))?;
+    let mut pos: Vec<[f64; 3]> = aligned.iter().map(|p| warp.apply(p)).collect();
+    for (i, &v) in lm_vertices.iter().enumerate() {
+        pos[v] = MEAN_FACE_68_CM[i];
     }
-    let n0 = centres.len();
-    let tps = Tps::new(centres).ok_or_else(|| anyhow::anyhow!("default rig: degenerate landmark layout"))?;
-    let field = |values: &[f64]| -> anyhow::Result<Vec<f64>> {
-        let coef = tps
-            .fit(values)
-            .ok_or_else(|| anyhow::anyhow!("default rig: spline fit failed"))?;
-        Ok(xy
-            .iter()
-            .enumerate()
-            .map(|(i, &(x, y))| if i < n0 { values[i] } else { tps.eval(&coef, x, y) })
-            .collect())
-    };
-    let z: Vec<f64> = field(&base_points.iter().map(|p| p[2]).collect::<Vec<_>>())?;
-    let positions: Vec<Point3<f32>> = xy
+    // Triangles: the mouth opening is left out; facing +Z (counter-clockwise seen from the
+    // front), flipped if the file winds the other way.
+    let in_mouth = |t: &[u32; 3]| t.iter().all(|&v| MESH_INNER_LIP.contains(&(v as usize)));
+    let mut tris: Vec<[u32; 3]> = canon.triangles.iter().copied().filter(|t| !in_mouth(t)).collect();
+    let facing: f64 = tris
         .iter()
-        .zip(&z)
-        .map(|(&(x, y), &z)| Point3::new(x as f32, y as f32, z as f32))
-        .collect();
-    let uvs = {
-        let (minx, maxx) = xy
+        .map(|t| {
+            let [a, b, c] = t.map(|i| pos[i as usize]);
+            (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        })
+        .sum();
+    if facing < 0.0 {
+        for t in &mut tris {
+            t.swap(1, 2);
+        }
+    }
+    // Displacements spread harmonically over the mesh from the landmarks, without the
+    // triangles across the eye openings (a lid moves alone); the forehead's edge stays.
+    let in_eye = |t: &[u32; 3]| {
+        MESH_EYE_OPENINGS
             .iter()
-            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.0), a.1.max(p.0)));
-        let (miny, maxy) = xy
-            .iter()
-            .fold((f64::MAX, f64::MIN), |a, p| (a.0.min(p.1), a.1.max(p.1)));
-        xy.iter()
-            .map(|p| {
-                [
-                    ((p.0 - minx) / (maxx - minx)) as f32,
-                    (1.0 - (p.1 - miny) / (maxy - miny)) as f32,
-                ]
-            })
-            .collect()
+            .any(|eye| t.iter().all(|&v| eye.contains(&(v as usize))))
     };
+    let spread_tris: Vec<[u32; 3]> = tris.iter().copied().filter(|t| !in_eye(t)).collect();
+    let brow_top = (17..27).map(|i| MEAN_FACE_68_CM[i][1]).fold(f64::MIN, f64::max);
+    let mut fixed: Vec<usize> = lm_vertices.to_vec();
+    fixed.extend(
+        boundary_vertices(&tris)
+            .into_iter()
+            .filter(|&v| pos[v][1] > brow_top && !lm_vertices.contains(&v)),
+    );
+    let harmonic = Harmonic::new(&pos, &spread_tris, &fixed)?;
+    let positions: Vec<Point3<f32>> = pos
+        .iter()
+        .map(|p| Point3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+        .collect();
+    let uvs = canon.uvs.iter().map(|t| [t[0] as f32, t[1] as f32]).collect();
     let mut base = Mesh {
         positions,
         triangles: tris,
@@ -341,55 +329,105 @@ pub fn default_rig() -> anyhow::Result<(MorphMesh, LandmarkMap)> {
     base.compute_normals();
     let mut targets = Vec::with_capacity(DEFAULT_SHAPES.len());
     for name in DEFAULT_SHAPES {
-        // Landmarks move as defined, the forehead stays; every vertex the subdivision
-        // added moves as the mean of its edge's ends (piecewise linear over the landmark
-        // triangles: no overshoot, so no folds where the lips part).
         let d = landmark_displacements(name);
-        let mut deltas: Vec<Vector3<f32>> = (0..n0)
-            .map(|i| if i < 68 { d[i].cast::<f32>() } else { Vector3::zeros() })
-            .collect();
-        for &(a, b) in &parents {
-            let m = (deltas[a as usize] + deltas[b as usize]) / 2.0;
-            deltas.push(m);
-        }
+        let mut values: Vec<[f64; 3]> = d.iter().map(|v| [v.x, v.y, v.z]).collect();
+        values.resize(fixed.len(), [0.0; 3]);
+        let field = harmonic.interpolate(&values)?;
         targets.push(MorphTarget {
             name: name.to_string(),
-            deltas,
+            deltas: field
+                .iter()
+                .map(|v| Vector3::new(v[0] as f32, v[1] as f32, v[2] as f32))
+                .collect(),
         });
     }
     let rig = MorphMesh { base, targets };
     rig.validate()?;
-    let ids: Vec<Option<u32>> = (0..68u32).map(Some).collect();
+    let ids: Vec<Option<u32>> = lm_vertices.iter().map(|&v| Some(v as u32)).collect();
     let map = LandmarkMap::from_slice(&ids)?;
     Ok((rig, map))
+}
+
+/// Vertices on the mesh's open edges (edges of one triangle only).
+fn boundary_vertices(tris: &[[u32; 3]]) -> Vec<usize> {
+    let mut count = std::collections::HashMap::new();
+    for t in tris {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *count.entry((a.min(b), a.max(b))).or_insert(0u32) += 1;
+        }
+    }
+    let mut v: Vec<usize> = count
+        .into_iter()
+        .filter(|&(_, c)| c == 1)
+        .flat_map(|((a, b), _)| [a as usize, b as usize])
+        .collect();
+    v.sort_unstable();
+    v.dedup();
+    v
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn rig() -> Option<(MorphMesh, LandmarkMap)> {
+        facecap_core::paths::model_file_or_skip("default_rig", facecap_mesh::canonical::GEOMETRY_METADATA)?;
+        Some(default_rig().unwrap())
+    }
+
     #[test]
     fn default_rig_is_valid_and_exact_at_landmarks() {
-        let (rig, map) = default_rig().unwrap();
-        assert!(rig.base.num_vertices() > 68 * 8);
+        let Some((rig, map)) = rig() else { return };
+        assert_eq!(rig.base.num_vertices(), 468);
         assert_eq!(rig.targets.len(), 16);
         map.validate(rig.base.num_vertices()).unwrap();
-        // the mesh ends at the jaw: the contour keeps its fixed vertices
-        let solve_rig = facecap_solve::BlendshapeRig::from_morph_mesh(rig.clone(), &map, "built-in").unwrap();
-        assert!(solve_rig.contour.is_none());
+        let lm = |i: usize| map.vertices[i].unwrap() as usize;
         for (i, p) in MEAN_FACE_68_CM.iter().enumerate() {
-            let v = rig.base.positions[i];
+            let v = rig.base.positions[lm(i)];
             assert!((v.x as f64 - p[0]).abs() < 1e-5 && (v.z as f64 - p[2]).abs() < 1e-5);
         }
-        // jawOpen moves the chin down by 1.6 cm and leaves the brows alone.
+        // jawOpen moves the chin down by 1.6 cm and leaves the brows and the upper lip alone.
         let jaw = &rig.targets[0];
-        assert!((jaw.deltas[8].y + 1.6).abs() < 1e-5);
-        assert!(jaw.deltas[19].norm() < 1e-6);
-        // Every triangle has positive area in the frontal plane (no fold-overs).
-        for t in &rig.base.triangles {
-            let [a, b, c] = t.map(|i| rig.base.positions[i as usize]);
-            let cross = (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x);
-            assert!(cross > 0.0);
+        assert!((jaw.deltas[lm(8)].y + 1.6).abs() < 1e-5);
+        assert!(jaw.deltas[lm(19)].norm() < 1e-6);
+        for v in [0usize, 37, 267, 13, 82, 312] {
+            assert!(
+                jaw.deltas[v].norm() < 0.2,
+                "upper lip vertex {v} moves {}",
+                jaw.deltas[v].norm()
+            );
+        }
+        // the lower lip's inner edge opens with the jaw
+        for v in [14usize, 87, 317] {
+            assert!(jaw.deltas[v].y < -1.0, "lower lip vertex {v}: {:?}", jaw.deltas[v]);
+        }
+        // a blink closes the upper lid's middle, the lower lid hardly moves
+        let blink = &rig.targets[13];
+        assert_eq!(blink.name, "eyeBlinkLeft");
+        assert!(blink.deltas[386].y < -0.5, "{:?}", blink.deltas[386]);
+        assert!(blink.deltas[374].y.abs() < 0.2, "{:?}", blink.deltas[374]);
+        // no triangle closes the mouth; nearly all face the front
+        assert!(rig.base.triangles.len() < 898);
+        let front = rig
+            .base
+            .triangles
+            .iter()
+            .filter(|t| {
+                let [a, b, c] = t.map(|i| rig.base.positions[i as usize]);
+                (b.x - a.x) * (c.y - a.y) - (b.y - a.y) * (c.x - a.x) > 0.0
+            })
+            .count();
+        assert!(
+            front * 10 > rig.base.triangles.len() * 9,
+            "{front} of {}",
+            rig.base.triangles.len()
+        );
+        // displacements stay inside the landmarks' range (no overshoot)
+        for t in &rig.targets {
+            let max_lm = (0..68).map(|i| t.deltas[lm(i)].norm()).fold(0.0f32, f32::max);
+            let max_all = t.deltas.iter().map(|d| d.norm()).fold(0.0f32, f32::max);
+            assert!(max_all <= max_lm * 1.0001 + 1e-6, "{}: {max_all} > {max_lm}", t.name);
         }
     }
 }

@@ -15,6 +15,7 @@
 //! | [`golden`] | golden-section search of a unimodal function |
 //! | [`delaunay`] | Bowyer-Watson Delaunay triangulation of 2D points |
 //! | [`tps`] | thin-plate spline `R^2 -> R` |
+//! | [`harmonic`] | harmonic (membrane) interpolation of values given at some vertices of a triangle mesh |
 //!
 //! Errors are `facecap_core::Error` (re-exported here).
 
@@ -25,6 +26,7 @@ pub mod cholesky;
 pub mod delaunay;
 pub mod epnp;
 pub mod golden;
+pub mod harmonic;
 pub mod nnls;
 pub mod pnp;
 pub mod pose;

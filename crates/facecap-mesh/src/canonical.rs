@@ -7,8 +7,9 @@
 //! `scripts/setup.sh` extracts from MediaPipe's `face_landmarker.task` bundle into the
 //! model cache (sha256-checked). The file is a `GeometryPipelineMetadata` protobuf:
 //! field 1 is the canonical mesh, whose field 3 (`vertex_buffer`, repeated float) holds
-//! 5 floats per vertex (`x y z u v`). Only these fields are read; every length is
-//! checked against the bytes that remain before it is used.
+//! 5 floats per vertex (`x y z u v`) and field 4 (`index_buffer`, repeated uint32) three
+//! vertex ids per triangle. Only these fields are read; every length is checked against
+//! the bytes that remain before it is used, every index against the vertex count.
 
 use std::path::Path;
 
@@ -20,6 +21,19 @@ pub const GEOMETRY_METADATA: &str = "geometry_pipeline_metadata_landmarks.binary
 pub const CANONICAL_VERTICES: usize = 468;
 /// Floats per vertex in the vertex buffer (`x y z u v`).
 const FLOATS_PER_VERTEX: usize = 5;
+/// Most triangles accepted (the canonical face has 898).
+const MAX_TRIANGLES: usize = 4 * CANONICAL_VERTICES;
+
+/// The canonical face as a triangle mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CanonicalMesh {
+    /// The 468 vertices (cm, +Y up, +Z out of the face), face-mesh landmark order.
+    pub positions: Vec<[f64; 3]>,
+    /// Texture coordinates per vertex (`u v` as stored).
+    pub uvs: Vec<[f64; 2]>,
+    /// Triangles (vertex ids, each `< 468`), as stored.
+    pub triangles: Vec<[u32; 3]>,
+}
 
 fn bad(reason: impl Into<String>) -> Error {
     Error::Model {
@@ -41,7 +55,7 @@ fn varint(b: &[u8], i: &mut usize) -> Result<u64> {
 }
 
 /// Calls `f(field, wire_type, payload)` for every field of one protobuf message;
-/// `payload` is the varint value's bytes for wire type 0 (not used here), the 4/8 bytes
+/// `payload` is the varint value's bytes for wire type 0, the 4/8 bytes
 /// for types 5/1, the contents for type 2.
 fn fields<'a>(b: &'a [u8], mut f: impl FnMut(u64, u64, &'a [u8]) -> Result<()>) -> Result<()> {
     let mut i = 0;
@@ -52,7 +66,7 @@ fn fields<'a>(b: &'a [u8], mut f: impl FnMut(u64, u64, &'a [u8]) -> Result<()>) 
         let len = match wire {
             0 => {
                 varint(b, &mut i)?;
-                0
+                i - start
             }
             1 => 8,
             5 => 4,
@@ -78,6 +92,24 @@ fn fields<'a>(b: &'a [u8], mut f: impl FnMut(u64, u64, &'a [u8]) -> Result<()>) 
 /// # Errors
 /// [`Error::Model`] for a malformed file or one without 468 vertices.
 pub fn parse_canonical_face(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
+    Ok(parse_mesh(bytes, false)?.positions)
+}
+
+/// Parses the canonical face with its texture coordinates and triangles.
+///
+/// # Errors
+/// [`Error::Model`] for a malformed file, one without 468 vertices, without triangles,
+/// with an index buffer that is not whole triangles or an index past the vertices.
+pub fn parse_canonical_mesh(bytes: &[u8]) -> Result<CanonicalMesh> {
+    parse_mesh(bytes, true)
+}
+
+fn varint_field(payload: &[u8]) -> Result<u64> {
+    let mut i = 0;
+    varint(payload, &mut i)
+}
+
+fn parse_mesh(bytes: &[u8], with_triangles: bool) -> Result<CanonicalMesh> {
     let mut mesh: Option<&[u8]> = None;
     fields(bytes, |field, wire, payload| {
         if field == 1 && wire == 2 {
@@ -87,6 +119,7 @@ pub fn parse_canonical_face(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
     })?;
     let mesh = mesh.ok_or_else(|| bad("no canonical mesh (field 1)"))?;
     let mut floats: Vec<f32> = Vec::new();
+    let mut indices: Vec<u64> = Vec::new();
     fields(mesh, |field, wire, payload| {
         if field == 3 {
             match wire {
@@ -104,6 +137,24 @@ pub fn parse_canonical_face(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
                 _ => return Err(bad("vertex buffer of an unexpected wire type")),
             }
         }
+        if field == 4 && with_triangles {
+            match wire {
+                0 => indices.push(varint_field(payload)?),
+                2 => {
+                    let mut i = 0;
+                    while i < payload.len() {
+                        indices.push(varint(payload, &mut i)?);
+                        if indices.len() > 3 * MAX_TRIANGLES {
+                            break;
+                        }
+                    }
+                }
+                _ => return Err(bad("index buffer of an unexpected wire type")),
+            }
+            if indices.len() > 3 * MAX_TRIANGLES {
+                return Err(bad(format!("more than {MAX_TRIANGLES} triangles")));
+            }
+        }
         if floats.len() > CANONICAL_VERTICES * FLOATS_PER_VERTEX {
             return Err(bad("more vertices than the face mesh has"));
         }
@@ -116,14 +167,46 @@ pub fn parse_canonical_face(bytes: &[u8]) -> Result<Vec<[f64; 3]>> {
             CANONICAL_VERTICES * FLOATS_PER_VERTEX
         )));
     }
-    let pts: Vec<[f64; 3]> = floats
+    if floats.iter().any(|c| !c.is_finite()) {
+        return Err(bad("non-finite vertex coordinate"));
+    }
+    let positions: Vec<[f64; 3]> = floats
         .chunks_exact(FLOATS_PER_VERTEX)
         .map(|v| [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])])
         .collect();
-    if pts.iter().flatten().any(|c| !c.is_finite()) {
-        return Err(bad("non-finite vertex coordinate"));
+    let uvs: Vec<[f64; 2]> = floats
+        .chunks_exact(FLOATS_PER_VERTEX)
+        .map(|v| [f64::from(v[3]), f64::from(v[4])])
+        .collect();
+    let mut triangles = Vec::with_capacity(indices.len() / 3);
+    if with_triangles {
+        if indices.is_empty() || indices.len() % 3 != 0 {
+            return Err(bad(format!(
+                "index buffer of {} entries, expected whole triangles",
+                indices.len()
+            )));
+        }
+        for t in indices.chunks_exact(3) {
+            let mut tri = [0u32; 3];
+            for (o, &v) in tri.iter_mut().zip(t) {
+                if v >= CANONICAL_VERTICES as u64 {
+                    return Err(bad(format!(
+                        "triangle index {v} past the {CANONICAL_VERTICES} vertices"
+                    )));
+                }
+                *o = v as u32;
+            }
+            if tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2] {
+                return Err(bad(format!("degenerate triangle {tri:?}")));
+            }
+            triangles.push(tri);
+        }
     }
-    Ok(pts)
+    Ok(CanonicalMesh {
+        positions,
+        uvs,
+        triangles,
+    })
 }
 
 /// Reads the canonical face from a metadata file.
@@ -148,6 +231,22 @@ pub fn canonical_face_from_cache() -> Result<Vec<[f64; 3]>> {
         what: format!("{GEOMETRY_METADATA} not in the model cache (run scripts/setup.sh)"),
     })?;
     read_canonical_face(&path)
+}
+
+/// Reads the canonical face mesh (vertices, texture coordinates, triangles) from the
+/// model cache.
+///
+/// # Errors
+/// As [`canonical_face_from_cache`], else as [`parse_canonical_mesh`].
+pub fn canonical_mesh_from_cache() -> Result<CanonicalMesh> {
+    let path = facecap_core::paths::model_file(GEOMETRY_METADATA).ok_or_else(|| Error::InvalidInput {
+        what: format!("{GEOMETRY_METADATA} not in the model cache (run scripts/setup.sh)"),
+    })?;
+    let bytes = std::fs::read(&path).map_err(|source| Error::Io {
+        path: path.clone(),
+        source,
+    })?;
+    parse_canonical_mesh(&bytes)
 }
 
 #[cfg(test)]
