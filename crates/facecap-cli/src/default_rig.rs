@@ -118,8 +118,9 @@ const MESH_EYE_OPENINGS: [[usize; 16]; 2] = [
     ],
 ];
 
-/// Names of the default rig's blendshapes (a subset of ARKit's 52).
-pub const DEFAULT_SHAPES: [&str; 16] = [
+/// Names of the default rig's blendshapes: ARKit's 52, the first 16 in the order of the
+/// earlier 16-shape rig (synthetic clips and their truth use these).
+pub const DEFAULT_SHAPES: [&str; 52] = [
     "jawOpen",
     "mouthSmileLeft",
     "mouthSmileRight",
@@ -136,6 +137,42 @@ pub const DEFAULT_SHAPES: [&str; 16] = [
     "eyeBlinkLeft",
     "eyeBlinkRight",
     "mouthRollLower",
+    "eyeLookDownLeft",
+    "eyeLookDownRight",
+    "eyeLookInLeft",
+    "eyeLookInRight",
+    "eyeLookOutLeft",
+    "eyeLookOutRight",
+    "eyeLookUpLeft",
+    "eyeLookUpRight",
+    "eyeSquintLeft",
+    "eyeSquintRight",
+    "eyeWideLeft",
+    "eyeWideRight",
+    "jawForward",
+    "jawLeft",
+    "jawRight",
+    "mouthClose",
+    "mouthFunnel",
+    "mouthLeft",
+    "mouthRight",
+    "mouthDimpleLeft",
+    "mouthDimpleRight",
+    "mouthRollUpper",
+    "mouthShrugLower",
+    "mouthShrugUpper",
+    "mouthPressLeft",
+    "mouthPressRight",
+    "mouthLowerDownLeft",
+    "mouthLowerDownRight",
+    "mouthUpperUpLeft",
+    "mouthUpperUpRight",
+    "cheekPuff",
+    "cheekSquintLeft",
+    "cheekSquintRight",
+    "noseSneerLeft",
+    "noseSneerRight",
+    "tongueOut",
 ];
 
 /// Displacement (cm) of each of the 68 landmarks for the named shape.
@@ -237,12 +274,215 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[56, 57, 58], Vector3::new(0.0, 0.35, -0.3));
             set(&[65, 66, 67], Vector3::new(0.0, 0.2, -0.3));
         }
+        "eyeLookDownLeft" | "eyeLookDownRight" | "eyeLookUpLeft" | "eyeLookUpRight" => {
+            // No eyeballs: the lids follow the gaze a little (the upper lid most).
+            let pairs: [(usize, usize); 2] = if name.ends_with("Left") {
+                [(43, 47), (44, 46)]
+            } else {
+                [(37, 41), (38, 40)]
+            };
+            let down = name.starts_with("eyeLookDown");
+            for (up, low) in pairs {
+                let dy = p(low).y - p(up).y;
+                if down {
+                    set(&[up], Vector3::new(0.0, 0.3 * dy, 0.0));
+                    set(&[low], Vector3::new(0.0, 0.08 * dy, 0.0));
+                } else {
+                    set(&[up], Vector3::new(0.0, -0.25 * dy, 0.0));
+                    set(&[low], Vector3::new(0.0, -0.1 * dy, 0.0));
+                }
+            }
+        }
+        "eyeSquintLeft" | "eyeSquintRight" => {
+            // The lower lid rises and straightens, the upper lid comes down a little.
+            let pairs: [(usize, usize); 2] = if name.ends_with("Left") {
+                [(43, 47), (44, 46)]
+            } else {
+                [(37, 41), (38, 40)]
+            };
+            for (up, low) in pairs {
+                let dy = p(low).y - p(up).y;
+                set(&[low], Vector3::new(0.0, -0.35 * dy, 0.05));
+                set(&[up], Vector3::new(0.0, 0.1 * dy, 0.0));
+            }
+        }
+        "eyeWideLeft" | "eyeWideRight" => {
+            let pairs: [(usize, usize); 2] = if name.ends_with("Left") {
+                [(43, 47), (44, 46)]
+            } else {
+                [(37, 41), (38, 40)]
+            };
+            for (up, low) in pairs {
+                let dy = p(low).y - p(up).y;
+                set(&[up], Vector3::new(0.0, -0.35 * dy, 0.05));
+                set(&[low], Vector3::new(0.0, 0.08 * dy, 0.0));
+            }
+        }
+        "jawForward" => {
+            for i in 3..=13usize {
+                let w = (1.0 - (i as f64 - 8.0).abs() / 6.0).max(0.0);
+                set(&[i], Vector3::new(0.0, 0.0, 0.6 * w));
+            }
+            set(&[55, 56, 57, 58, 59, 65, 66, 67], Vector3::new(0.0, 0.05, 0.5));
+        }
+        "jawLeft" | "jawRight" => {
+            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
+            for i in 2..=14usize {
+                let w = (1.0 - (i as f64 - 8.0).abs() / 7.0).max(0.0);
+                set(&[i], Vector3::new(0.7 * s * w, 0.0, 0.0));
+            }
+            set(&[55, 56, 57, 58, 59, 65, 66, 67], Vector3::new(0.55 * s, 0.0, 0.0));
+            set(&[48, 54, 60, 64], Vector3::new(0.25 * s, 0.0, 0.0));
+        }
+        "mouthClose" => {
+            // Lips closed over an open jaw: the lower lip and corners go back up by the
+            // lip part of jawOpen (its other half, the jaw, stays).
+            set(&[56, 57, 58, 65, 66, 67], Vector3::new(0.0, 1.4, 0.3));
+            set(&[55, 59], Vector3::new(0.0, 0.9, 0.2));
+            set(&[48, 54, 60, 64], Vector3::new(0.0, 0.4, 0.1));
+            set(&[61, 62, 63], Vector3::new(0.0, -0.1, 0.0));
+        }
+        "mouthFunnel" => {
+            set(&[48, 60], Vector3::new(0.35, 0.0, 0.2));
+            set(&[54, 64], Vector3::new(-0.35, 0.0, 0.2));
+            set(&[49, 50, 51, 52, 53], Vector3::new(0.0, 0.15, 0.45));
+            set(&[55, 56, 57, 58, 59], Vector3::new(0.0, -0.2, 0.45));
+            set(&[61, 62, 63], Vector3::new(0.0, 0.3, 0.35));
+            set(&[65, 66, 67], Vector3::new(0.0, -0.35, 0.35));
+        }
+        "mouthLeft" | "mouthRight" => {
+            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
+            set(&(48..68).collect::<Vec<_>>(), Vector3::new(0.6 * s, 0.0, 0.0));
+            set(&[6, 7, 8, 9, 10], Vector3::new(0.1 * s, 0.0, 0.0));
+        }
+        "mouthDimpleLeft" | "mouthDimpleRight" => {
+            let (s, corner, inner) = if name.ends_with("Left") {
+                (1.0, 54, 64)
+            } else {
+                (-1.0, 48, 60)
+            };
+            // Back into the cheek (a stretch pulls outward and down).
+            set(&[corner, inner], Vector3::new(0.08 * s, 0.0, -0.4));
+        }
+        "mouthRollUpper" => {
+            set(&[50, 51, 52], Vector3::new(0.0, -0.35, -0.3));
+            set(&[61, 62, 63], Vector3::new(0.0, -0.2, -0.3));
+        }
+        "mouthShrugLower" => {
+            set(&[56, 57, 58], Vector3::new(0.0, 0.3, 0.25));
+            set(&[65, 66, 67], Vector3::new(0.0, 0.15, 0.15));
+            set(&[7, 8, 9], Vector3::new(0.0, 0.25, 0.1));
+        }
+        "mouthShrugUpper" => {
+            set(&[49, 50, 51, 52, 53], Vector3::new(0.0, 0.2, 0.1));
+            set(&[61, 62, 63], Vector3::new(0.0, 0.15, 0.05));
+        }
+        "mouthPressLeft" | "mouthPressRight" => {
+            // The lips pressed together on one side: the lower lip rises, the upper
+            // lip's inner edge comes down, both flatten.
+            let (low, inner_low, inner_up) = if name.ends_with("Left") {
+                ([55, 56], [64, 65], [63])
+            } else {
+                ([59, 58], [60, 67], [61])
+            };
+            set(&low, Vector3::new(0.0, 0.3, -0.1));
+            set(&inner_low, Vector3::new(0.0, 0.15, -0.1));
+            set(&inner_up, Vector3::new(0.0, -0.1, -0.1));
+        }
+        "mouthLowerDownLeft" | "mouthLowerDownRight" => {
+            let (side, inner) = if name.ends_with("Left") {
+                ([55, 56], 65)
+            } else {
+                ([59, 58], 67)
+            };
+            set(&side, Vector3::new(0.0, -0.5, 0.05));
+            set(&[inner], Vector3::new(0.0, -0.45, 0.0));
+            set(&[57, 66], Vector3::new(0.0, -0.25, 0.0));
+        }
+        "mouthUpperUpLeft" | "mouthUpperUpRight" => {
+            let (side, inner) = if name.ends_with("Left") {
+                ([52, 53], 63)
+            } else {
+                ([50, 49], 61)
+            };
+            set(&side, Vector3::new(0.0, 0.45, 0.05));
+            set(&[inner], Vector3::new(0.0, 0.4, 0.0));
+            set(&[51, 62], Vector3::new(0.0, 0.2, 0.0));
+        }
+        "cheekPuff" => {
+            set(&[48, 60], Vector3::new(-0.1, 0.0, 0.1));
+            set(&[54, 64], Vector3::new(0.1, 0.0, 0.1));
+            set(&[4, 5], Vector3::new(-0.2, 0.0, 0.1));
+            set(&[11, 12], Vector3::new(0.2, 0.0, 0.1));
+        }
+        "cheekSquintLeft" | "cheekSquintRight" => {
+            let low: [usize; 2] = if name.ends_with("Left") { [46, 47] } else { [40, 41] };
+            set(&low, Vector3::new(0.0, 0.08, 0.0));
+        }
+        "noseSneerLeft" | "noseSneerRight" => {
+            let (wing, brow) = if name.ends_with("Left") {
+                ([34, 35], 22)
+            } else {
+                ([32, 31], 21)
+            };
+            set(&wing, Vector3::new(0.0, 0.3, 0.0));
+            set(&[brow], Vector3::new(0.0, -0.15, 0.0));
+            let upper: [usize; 2] = if name.ends_with("Left") { [52, 53] } else { [50, 49] };
+            set(&upper, Vector3::new(0.0, 0.1, 0.0));
+        }
+        "tongueOut" => {
+            set(&[56, 57, 58], Vector3::new(0.0, -0.3, 0.2));
+            set(&[65, 66, 67], Vector3::new(0.0, -0.5, 0.3));
+        }
         _ => {}
     }
     d
 }
 
-/// The default rig: the face mesh topology with 16 morph targets, and its landmark map.
+/// Displacement (cm) of mesh vertices that are not landmarks, for the shapes whose
+/// motion lies between the landmarks (cheeks, nose wings): `(vertex, displacement)`.
+fn mesh_handles(name: &str) -> Vec<(usize, Vector3<f64>)> {
+    let side = |left: bool, r: usize, l: usize| if left { l } else { r };
+    let left = name.ends_with("Left");
+    let s = if left { 1.0 } else { -1.0 };
+    match name {
+        "cheekPuff" => {
+            let mut h = Vec::new();
+            for (r, l, out) in [
+                (50, 280, 0.7),
+                (205, 425, 0.6),
+                (187, 411, 0.5),
+                (207, 427, 0.6),
+                (216, 436, 0.4),
+            ] {
+                h.push((r, Vector3::new(-out, 0.0, 0.35 * out)));
+                h.push((l, Vector3::new(out, 0.0, 0.35 * out)));
+            }
+            h
+        }
+        "cheekSquintLeft" | "cheekSquintRight" => [
+            (118, 347, 0.35),
+            (117, 346, 0.3),
+            (119, 348, 0.3),
+            (50, 280, 0.25),
+            (101, 330, 0.2),
+        ]
+        .iter()
+        .map(|&(r, l, up)| (side(left, r, l), Vector3::new(0.0, up, 0.1)))
+        .collect(),
+        "noseSneerLeft" | "noseSneerRight" => [(129, 358, 0.3), (48, 278, 0.3), (64, 294, 0.25), (49, 279, 0.25)]
+            .iter()
+            .map(|&(r, l, up)| (side(left, r, l), Vector3::new(0.05 * s, up, 0.0)))
+            .collect(),
+        "mouthSmileLeft" | "mouthSmileRight" => [(205, 425, 0.3), (50, 280, 0.2)]
+            .iter()
+            .map(|&(r, l, up)| (side(left, r, l), Vector3::new(0.1 * s, up, 0.1)))
+            .collect(),
+        _ => Vec::new(),
+    }
+}
+
+/// The default rig: the face mesh topology with ARKit's 52 morph targets, and its landmark map.
 ///
 /// # Errors
 /// The canonical face mesh missing from the model cache (`scripts/setup.sh` puts it
@@ -314,7 +554,8 @@ pub fn build_default_rig(canon: &CanonicalMesh) -> anyhow::Result<(MorphMesh, La
             .into_iter()
             .filter(|&v| pos[v][1] > brow_top && !lm_vertices.contains(&v)),
     );
-    let harmonic = Harmonic::new(&pos, &spread_tris, &fixed)?;
+    let base_fixed = fixed.len();
+    let mut spreads: std::collections::HashMap<Vec<usize>, Harmonic> = std::collections::HashMap::new();
     let positions: Vec<Point3<f32>> = pos
         .iter()
         .map(|p| Point3::new(p[0] as f32, p[1] as f32, p[2] as f32))
@@ -331,7 +572,21 @@ pub fn build_default_rig(canon: &CanonicalMesh) -> anyhow::Result<(MorphMesh, La
     for name in DEFAULT_SHAPES {
         let d = landmark_displacements(name);
         let mut values: Vec<[f64; 3]> = d.iter().map(|v| [v.x, v.y, v.z]).collect();
-        values.resize(fixed.len(), [0.0; 3]);
+        values.resize(base_fixed, [0.0; 3]);
+        let handles: Vec<(usize, Vector3<f64>)> = mesh_handles(name)
+            .into_iter()
+            .filter(|(v, _)| !fixed.contains(v))
+            .collect();
+        let key: Vec<usize> = handles.iter().map(|h| h.0).collect();
+        values.extend(handles.iter().map(|(_, v)| [v.x, v.y, v.z]));
+        let harmonic = match spreads.entry(key) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let mut f = fixed.clone();
+                f.extend_from_slice(e.key());
+                e.insert(Harmonic::new(&pos, &spread_tris, &f)?)
+            }
+        };
         let field = harmonic.interpolate(&values)?;
         targets.push(MorphTarget {
             name: name.to_string(),
@@ -380,7 +635,11 @@ mod tests {
     fn default_rig_is_valid_and_exact_at_landmarks() {
         let Some((rig, map)) = rig() else { return };
         assert_eq!(rig.base.num_vertices(), 468);
-        assert_eq!(rig.targets.len(), 16);
+        assert_eq!(rig.targets.len(), 52);
+        let names: Vec<&str> = rig.targets.iter().map(|t| t.name.as_str()).collect();
+        assert_eq!(names, DEFAULT_SHAPES);
+        let unique: std::collections::HashSet<&str> = names.iter().copied().collect();
+        assert_eq!(unique.len(), 52);
         map.validate(rig.base.num_vertices()).unwrap();
         let lm = |i: usize| map.vertices[i].unwrap() as usize;
         for (i, p) in MEAN_FACE_68_CM.iter().enumerate() {
@@ -423,11 +682,76 @@ mod tests {
             "{front} of {}",
             rig.base.triangles.len()
         );
-        // displacements stay inside the landmarks' range (no overshoot)
+        // displacements stay inside the range of the given ones (no overshoot)
         for t in &rig.targets {
-            let max_lm = (0..68).map(|i| t.deltas[lm(i)].norm()).fold(0.0f32, f32::max);
+            let handles = mesh_handles(&t.name).into_iter().map(|(v, _)| v);
+            let max_lm = (0..68)
+                .map(lm)
+                .chain(handles)
+                .map(|v| t.deltas[v].norm())
+                .fold(0.0f32, f32::max);
             let max_all = t.deltas.iter().map(|d| d.norm()).fold(0.0f32, f32::max);
             assert!(max_all <= max_lm * 1.0001 + 1e-6, "{}: {max_all} > {max_lm}", t.name);
         }
+    }
+
+    /// With `FACECAP_DEBUG_DIR` set, draws the rig at rest and at full weight of a few
+    /// shapes (`default_rig_shapes.png`) to look at.
+    #[test]
+    fn draws_shapes_to_look_at() {
+        let Some(dir) = std::env::var_os("FACECAP_DEBUG_DIR") else {
+            return;
+        };
+        let Some((rig, map)) = rig() else { return };
+        let r = facecap_pipeline::render::RigRenderer::new(&rig, Some(&map)).unwrap();
+        let sets: [&[&str]; 12] = [
+            &[],
+            &["jawOpen"],
+            &[
+                "mouthSmileLeft",
+                "mouthSmileRight",
+                "cheekSquintLeft",
+                "cheekSquintRight",
+            ],
+            &["eyeBlinkLeft", "eyeBlinkRight"],
+            &[
+                "browInnerUp",
+                "browOuterUpLeft",
+                "browOuterUpRight",
+                "eyeWideLeft",
+                "eyeWideRight",
+            ],
+            &["mouthPucker"],
+            &["cheekPuff"],
+            &["mouthFunnel", "jawOpen"],
+            &["jawLeft"],
+            &[
+                "mouthUpperUpLeft",
+                "mouthUpperUpRight",
+                "noseSneerLeft",
+                "noseSneerRight",
+            ],
+            &["browDownLeft", "browDownRight", "eyeSquintLeft", "eyeSquintRight"],
+            &["mouthFrownLeft", "mouthFrownRight", "mouthShrugLower"],
+        ];
+        let size = 256;
+        let mut sheet = image::RgbImage::new(size * 6, size * 2);
+        for (k, set) in sets.iter().enumerate() {
+            let w: Vec<f64> = rig
+                .targets
+                .iter()
+                .map(|t| if set.contains(&t.name.as_str()) { 1.0 } else { 0.0 })
+                .collect();
+            let img = r.render(&w, None, size).unwrap();
+            image::imageops::replace(
+                &mut sheet,
+                &img,
+                (k as u32 % 6 * size) as i64,
+                (k as u32 / 6 * size) as i64,
+            );
+        }
+        sheet
+            .save(std::path::Path::new(&dir).join("default_rig_shapes.png"))
+            .unwrap();
     }
 }

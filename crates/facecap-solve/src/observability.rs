@@ -5,8 +5,8 @@
 //!
 //! * `motion`: `||d_i||` over the 68 points, in inter-ocular distances (IOD, the rig's own
 //!   outer eye corner distance 36-45), so rigs in cm and mm compare;
-//! * `independence`: `||d_i - P d_i|| / ||d_i||`, where `P` projects on the span of all other
-//!   shapes' fields: 0 means another combination of shapes moves the landmarks the same way
+//! * `independence`: `min_x ||d_i - D x|| / ||d_i||` over non-negative weights `x` of the other
+//!   shapes' fields `D` (weights are never negative): 0 means another combination of shapes moves the landmarks the same way
 //!   (the landmarks cannot tell them apart), 1 means no other shape does anything like it;
 //! * `closest`: the other shape with the largest `|cos|` between the fields.
 //!
@@ -58,6 +58,9 @@ const UNSEEN: [(&str, &str); 4] = [
     ("jawForward", "moves along the viewing direction"),
     ("tongue", "inside the mouth; no landmark"),
 ];
+
+/// Coordinate passes of the non-negative fit behind `independence`.
+const NNLS_ITERATIONS: usize = 2000;
 
 /// Ridge (px^2 at IOD 100 px) of a shape with independence 1; see [`default_priors`].
 pub const BASE_RIDGE: f64 = 15.0;
@@ -188,12 +191,27 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
             } else {
                 let a = DMatrix::from_fn(rows, together.len(), |r, c| fields[(r, together[c])]);
                 let b = DVector::from_column_slice(fields.column(k).as_slice());
-                // min ||A x - b|| through the SVD (rank-deficient sets are common)
-                let svd = a.clone().svd(true, true);
-                match svd.solve(&b, 1e-10) {
-                    Ok(x) => ((&a * x - &b).norm() / motion).clamp(0.0, 1.0),
-                    Err(_) => 1.0,
-                }
+                // min ||A x - b|| over x >= 0: weights are never negative, so a shape
+                // is explained only by what the others do with positive weights (a
+                // lower lid rising in a squint does not explain an upper lid falling in
+                // a blink by a negative amount of something else)
+                let m = together.len();
+                let h = a.transpose() * &a; // symmetric: either storage order
+                let f: Vec<f64> = (a.transpose() * &b).iter().map(|v| -v).collect();
+                let mut x = vec![0.0; m];
+                let mut grad = vec![0.0; m];
+                let mut scratch = vec![0.0; facecap_geom::nnls::polish_scratch_len(m)];
+                facecap_geom::nnls::solve_polished_into(
+                    h.as_slice(),
+                    &f,
+                    &mut x,
+                    &mut grad,
+                    &mut scratch,
+                    NNLS_ITERATIONS,
+                    1e-12,
+                );
+                let x = DVector::from_vec(x);
+                ((&a * x - &b).norm() / motion).clamp(0.0, 1.0)
             };
             let closest = (0..n)
                 .filter(|&j| j != k && norms[j] > 0.0)
