@@ -152,7 +152,9 @@ fn weights_follow_mediapipe_on_a_real_clip() {
     eprintln!("built-in rig: {builtin:?}");
     let mean = builtin.values().sum::<f64>() / builtin.len() as f64;
     assert!(builtin.len() >= 5, "{builtin:?}");
-    assert!(mean >= 0.65, "built-in rig mean r {mean} (measured 0.75)");
+    // 52 shapes since 2026-12-03 (mean over 14 shapes the reference moves: 0.61; the 16-shape
+    // rig before it: 0.75 over 6)
+    assert!(mean >= 0.52, "built-in rig mean r {mean} (measured 0.61)");
     for (shape, bound) in [("jawOpen", 0.8), ("eyeBlink", 0.75), ("mouthSmile", 0.7)] {
         assert!(
             builtin[shape] >= bound,
@@ -199,7 +201,7 @@ fn mesh_front_end_weights_follow_mediapipe() {
     eprintln!("mesh, built-in rig: {builtin:?}");
     let mean = builtin.values().sum::<f64>() / builtin.len() as f64;
     assert!(builtin.len() >= 5, "{builtin:?}");
-    assert!(mean >= 0.65, "built-in rig mean r {mean} (measured 0.73)");
+    assert!(mean >= 0.5, "built-in rig mean r {mean} (measured 0.59 with 52 shapes)");
     for (shape, bound) in [("jawOpen", 0.8), ("eyeBlink", 0.75), ("mouthSmile", 0.7)] {
         assert!(
             builtin[shape] >= bound,
