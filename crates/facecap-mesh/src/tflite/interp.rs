@@ -364,7 +364,8 @@ impl Interpreter {
                     };
                     let w = Packed::new(cdata(*filter)?, bias_data, oc, kk);
                     if !g.is_pointwise() {
-                        im2col_len = im2col_len.max(g.im2col_len());
+                        let rows = (g.oh * g.ow).min(kernels::im2col_chunk_rows(kk));
+                        im2col_len = im2col_len.max(rows * kk);
                     }
                     Step::Conv {
                         src: slot(*input)?,
@@ -788,9 +789,7 @@ fn exec(step: &Step, ws: &mut Workspace, level: kernels::Level) {
             if g.is_pointwise() {
                 kernels::gemm_at(level, &slots[*src], rows, w, &ep, o);
             } else {
-                let col = &mut ws.col[..g.im2col_len()];
-                kernels::im2col(&slots[*src], g, col);
-                kernels::gemm_at(level, col, rows, w, &ep, o);
+                kernels::conv_im2col(level, &slots[*src], g, w, &ep, &mut ws.col, o);
             }
         }
         Step::Depthwise {

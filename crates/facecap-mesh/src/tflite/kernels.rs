@@ -742,6 +742,36 @@ pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'
     }
 }
 
+/// A convolution through im2col, chunk by chunk ([`im2col_chunk_rows`] output pixels):
+/// each chunk's patches are built in `col` (at least `im2col_chunk_rows(w.k) * w.k`
+/// floats) and multiplied while they are in L1, instead of writing the whole im2col
+/// matrix (1.8 MB for the landmark model's first layer) and reading it back.
+#[inline(always)]
+pub fn conv_im2col(
+    level: Level,
+    input: &[f32],
+    g: &Geom,
+    w: &Packed,
+    ep: &Epilogue<'_>,
+    col: &mut [f32],
+    out: &mut [f32],
+) {
+    let (rows, k, n) = (g.oh * g.ow, w.k, w.n);
+    let step = im2col_chunk_rows(k);
+    let mut p0 = 0;
+    while p0 < rows {
+        let p1 = (p0 + step).min(rows);
+        let c = &mut col[..(p1 - p0) * k];
+        im2col_rows(input, g, p0, p1, c);
+        let ep = Epilogue {
+            residual: ep.residual.map(|r| &r[p0 * n..]),
+            ..*ep
+        };
+        gemm_at(level, c, p1 - p0, w, &ep, &mut out[p0 * n..p1 * n]);
+        p0 = p1;
+    }
+}
+
 /// `out[p * n + co] = ep(bias[co] + sum_k a[p * k + kk] * W[kk, co])` for `rows` rows.
 #[inline(always)]
 pub fn gemm(a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
@@ -843,11 +873,30 @@ impl Geom {
 /// Fills `col` (`[oh * ow][kh * kw * ic]`) with the input patches, zeros outside.
 #[inline(always)]
 pub fn im2col(input: &[f32], g: &Geom, col: &mut [f32]) {
+    im2col_rows(input, g, 0, g.oh * g.ow, col);
+}
+
+/// Rows (output pixels) of [`im2col`] per chunk of [`conv_im2col`]: a multiple of the
+/// GEMM's row chunk, about 16 KiB of patches (at least one row chunk).
+pub fn im2col_chunk_rows(k: usize) -> usize {
+    (4096 / k.max(1) / CHUNK).max(1) * CHUNK
+}
+
+/// Rows `p0..p1` of [`im2col`] into `col[..(p1 - p0) * kh * kw * ic]`.
+#[inline(always)]
+pub fn im2col_rows(input: &[f32], g: &Geom, p0: usize, p1: usize, col: &mut [f32]) {
     let c = g.ic;
     let kk = g.win.kh * g.win.kw * c;
-    for oy in 0..g.oh {
-        for ox in 0..g.ow {
-            let row = &mut col[(oy * g.ow + ox) * kk..(oy * g.ow + ox + 1) * kk];
+    let (mut oy, mut ox) = (p0 / g.ow, p0 % g.ow);
+    for p in p0..p1 {
+        if ox == g.ow {
+            (oy, ox) = (oy + 1, 0);
+        }
+        let x = ox;
+        ox += 1;
+        {
+            let ox = x;
+            let row = &mut col[(p - p0) * kk..(p - p0 + 1) * kk];
             for ky in 0..g.win.kh {
                 let seg = g.win.kw * c;
                 let dst = &mut row[ky * seg..(ky + 1) * seg];
@@ -1121,9 +1170,12 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(16);
         for case in 0..60 {
             let k = [1usize, 2, 3, 5][case % 4];
+            // Up to 40x40 outputs: several chunks of im2col rows.
+            let big = case % 5 == 0;
             let s = 1 + (case / 4) % 2;
             let padding = if case % 3 == 0 { Padding::Valid } else { Padding::Same };
-            let (ih, iw) = (rng.random_range(k..12), rng.random_range(k..12));
+            let top = if big { 40 } else { 12 };
+            let (ih, iw) = (rng.random_range(k..top), rng.random_range(k..top));
             let ic = rng.random_range(1..20);
             let oc = rng.random_range(1..40);
             let win = Window {
@@ -1153,6 +1205,26 @@ mod tests {
                 let mut col = vec![0.0; g.im2col_len()];
                 im2col(&input, &g, &mut col);
                 gemm(&col, g.oh * g.ow, &packed, &Epilogue::act(act), &mut got);
+                // Chunk by chunk through a scratch of one chunk, with a residual.
+                let res = rnd(&mut rng, g.oh * g.ow * oc);
+                let ep = Epilogue {
+                    act,
+                    residual: Some(&res),
+                    post: Post::Relu,
+                };
+                let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
+                let mut scratch = vec![0.0; rows * k * k * ic];
+                for level in [Level::Portable, Level::detect()] {
+                    let mut chunked = vec![0.0; g.oh * g.ow * oc];
+                    conv_im2col(level, &input, &g, &packed, &ep, &mut scratch, &mut chunked);
+                    let d = chunked
+                        .iter()
+                        .zip(&want)
+                        .zip(&res)
+                        .map(|((c, w), r)| (c - (w + r).max(0.0)).abs())
+                        .fold(0.0, f32::max);
+                    assert!(d < 1e-4, "case {case} {level:?} chunked: max difference {d}");
+                }
             }
             let d = max_diff(&got, &want);
             assert!(d < 1e-4, "case {case}: max difference {d}");
