@@ -46,6 +46,27 @@ struct Fusion {
     output: usize,
 }
 
+/// The graph with every `PAD` that directly follows a convolution it does not read
+/// moved in front of that convolution. Residual blocks whose shortcut is channel-padded
+/// come as `CONV, PAD(shortcut), ADD(conv, pad)`; after the swap the `ADD` follows its
+/// convolution and [`plan_fusions`] folds it (and the `RELU` after it) into the epilogue.
+/// The swap keeps a valid execution order: the `PAD` reads nothing the convolution writes.
+fn pads_before_convs(graph: &Graph) -> Graph {
+    let mut g = graph.clone();
+    for k in 0..g.ops.len().saturating_sub(1) {
+        let conv_out = match &g.ops[k] {
+            Op::Conv2d { output, .. } | Op::DepthwiseConv2d { output, .. } => *output,
+            _ => continue,
+        };
+        if let Op::Pad { input, .. } = &g.ops[k + 1] {
+            if *input != conv_out {
+                g.ops.swap(k, k + 1);
+            }
+        }
+    }
+    g
+}
+
 /// Finds, for every convolution without a fused activation, the chain
 /// `conv -> ADD(conv, r) -> RELU|PRELU` (or `conv -> RELU|PRELU`) where each
 /// intermediate tensor is read only by the next operator and is not a graph output.
@@ -229,6 +250,8 @@ impl Interpreter {
     /// [`Error::Model`] when the graph uses a layout the kernels do not cover.
     pub fn from_graph(graph: &Graph) -> Result<Interpreter> {
         graph.check()?;
+        let reordered = pads_before_convs(graph);
+        let graph = &reordered;
         let t = &graph.tensors;
         let n_ops = graph.ops.len();
         let fusions = plan_fusions(graph);
@@ -341,7 +364,8 @@ impl Interpreter {
                     };
                     let w = Packed::new(cdata(*filter)?, bias_data, oc, kk);
                     if !g.is_pointwise() {
-                        im2col_len = im2col_len.max(g.im2col_len());
+                        let rows = (g.oh * g.ow).min(kernels::im2col_chunk_rows(kk));
+                        im2col_len = im2col_len.max(rows * kk);
                     }
                     Step::Conv {
                         src: slot(*input)?,
@@ -765,9 +789,7 @@ fn exec(step: &Step, ws: &mut Workspace, level: kernels::Level) {
             if g.is_pointwise() {
                 kernels::gemm_at(level, &slots[*src], rows, w, &ep, o);
             } else {
-                let col = &mut ws.col[..g.im2col_len()];
-                kernels::im2col(&slots[*src], g, col);
-                kernels::gemm_at(level, col, rows, w, &ep, o);
+                kernels::conv_im2col(level, &slots[*src], g, w, &ep, &mut ws.col, o);
             }
         }
         Step::Depthwise {

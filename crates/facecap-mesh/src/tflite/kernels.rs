@@ -50,6 +50,12 @@ pub enum Post<'a> {
 }
 
 impl Epilogue<'_> {
+    /// Whether the epilogue leaves the sums unchanged.
+    #[inline(always)]
+    fn is_identity(&self) -> bool {
+        self.act == Activation::None && self.residual.is_none() && matches!(self.post, Post::None)
+    }
+
     /// Only a fused activation.
     pub fn act(act: Activation) -> Epilogue<'static> {
         Epilogue {
@@ -356,6 +362,170 @@ mod v3 {
     /// Most kernel taps per axis of the register depthwise path.
     pub const MAX_TAPS: usize = 8;
 
+    /// Output pixels per register block of [`depthwise3x3`].
+    const DW_BLOCK: usize = 4;
+
+    /// One output vector (channels `cb..cb + 8` of pixel `(oy, ox)`) of a depthwise
+    /// convolution over the valid taps only: the border path of [`depthwise3x3`].
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn dw_pixel(
+        simd: V3,
+        input: &[f32],
+        g: &super::Geom,
+        filter: &[f32],
+        bias: &[f32],
+        ty: &[(usize, usize)],
+        ox: usize,
+        cb: usize,
+    ) -> f32x8 {
+        let (c, kw) = (g.ic, g.win.kw);
+        let mut acc = load(&bias[cb..cb + 8]);
+        for &(ky, iy) in ty {
+            for kx in 0..kw {
+                if let Some(ix) = g.ix(ox, kx) {
+                    let i = (iy * g.iw + ix) * c + cb;
+                    let w = (ky * kw + kx) * c + cb;
+                    acc = simd.mul_add_f32x8(load(&input[i..i + 8]), load(&filter[w..w + 8]), acc);
+                }
+            }
+        }
+        acc
+    }
+
+    #[inline(always)]
+    fn store8(out: &mut [f32], o: usize, v: f32x8) {
+        let v: [f32; 8] = bytemuck::cast(v);
+        if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut out[o..o + 8]) {
+            *dst = v;
+        }
+    }
+
+    /// 3x3 depthwise convolution (dilation 1, any stride, `c >= 8`; the caller
+    /// checks). Row by row and 8 channels at a time: the nine weight vectors stay in
+    /// registers over the whole output row, and the interior columns run in blocks of
+    /// [`DW_BLOCK`] pixels whose overlapping input vectors are loaded once per block
+    /// (stride 1: 6 loads per input row for 4 pixels instead of 12). Border pixels
+    /// (and rows with a tap outside the image) take the tap-checked path.
+    #[inline(always)]
+    pub fn depthwise3x3(
+        simd: V3,
+        input: &[f32],
+        g: &super::Geom,
+        filter: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+    ) {
+        match g.win.sw {
+            1 => depthwise3x3_s::<1>(simd, input, g, filter, bias, ep, out),
+            2 => depthwise3x3_s::<2>(simd, input, g, filter, bias, ep, out),
+            _ => depthwise3x3_s::<0>(simd, input, g, filter, bias, ep, out),
+        }
+    }
+
+    /// [`depthwise3x3`] with the column stride `S` fixed at compile time (`S = 0`: the
+    /// stride from `g`), so the overlapping loads of a block are recognised as such.
+    #[inline(always)]
+    fn depthwise3x3_s<const S: usize>(
+        simd: V3,
+        input: &[f32],
+        g: &super::Geom,
+        filter: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+    ) {
+        let c = g.ic;
+        let sw = if S == 0 { g.win.sw } else { S };
+        let row_len = g.iw * c;
+        // Interior columns: all three taps inside the row.
+        let lo = g.pl.div_ceil(sw).min(g.ow);
+        let hi = if g.iw + g.pl >= 3 {
+            ((g.iw + g.pl - 3) / sw + 1).min(g.ow)
+        } else {
+            0
+        }
+        .max(lo);
+        let mut ty = [(0usize, 0usize); 3];
+        for oy in 0..g.oh {
+            let mut ny = 0;
+            for ky in 0..3 {
+                if let Some(iy) = g.iy(oy, ky) {
+                    ty[ny] = (ky, iy);
+                    ny += 1;
+                }
+            }
+            let orow = oy * g.ow * c;
+            // With `c % 8 != 0` the last block overlaps the one before: its channels are
+            // computed twice, with the same arithmetic, and stored twice.
+            for cb in (0..c).step_by(8).map(|cb| cb.min(c - 8)) {
+                let mut ox = 0;
+                if ny == 3 {
+                    let b = load(&bias[cb..cb + 8]);
+                    let wv: [[f32x8; 3]; 3] = std::array::from_fn(|ky| {
+                        std::array::from_fn(|kx| {
+                            let w = (ky * 3 + kx) * c + cb;
+                            load(&filter[w..w + 8])
+                        })
+                    });
+                    let rows: [&[f32]; 3] = std::array::from_fn(|r| &input[ty[r].1 * row_len..(ty[r].1 + 1) * row_len]);
+                    while ox < lo {
+                        store8(
+                            out,
+                            orow + ox * c + cb,
+                            dw_pixel(simd, input, g, filter, bias, &ty, ox, cb),
+                        );
+                        ox += 1;
+                    }
+                    while ox + DW_BLOCK <= hi {
+                        let x0 = (ox * sw - g.pl) * c + cb;
+                        let mut acc = [b; DW_BLOCK];
+                        for (row, w) in rows.iter().zip(&wv) {
+                            let win = &row[x0..x0 + ((DW_BLOCK - 1) * sw + 2) * c + 8];
+                            for (j, a) in acc.iter_mut().enumerate() {
+                                for (kx, wk) in w.iter().enumerate() {
+                                    let i = (j * sw + kx) * c;
+                                    *a = simd.mul_add_f32x8(load(&win[i..i + 8]), *wk, *a);
+                                }
+                            }
+                        }
+                        for (j, a) in acc.iter().enumerate() {
+                            store8(out, orow + (ox + j) * c + cb, *a);
+                        }
+                        ox += DW_BLOCK;
+                    }
+                    while ox < hi {
+                        let x0 = ox * sw - g.pl;
+                        let mut a = b;
+                        for (row, w) in rows.iter().zip(&wv) {
+                            for (kx, wk) in w.iter().enumerate() {
+                                let i = (x0 + kx) * c + cb;
+                                a = simd.mul_add_f32x8(load(&row[i..i + 8]), *wk, a);
+                            }
+                        }
+                        store8(out, orow + ox * c + cb, a);
+                        ox += 1;
+                    }
+                }
+                while ox < g.ow {
+                    store8(
+                        out,
+                        orow + ox * c + cb,
+                        dw_pixel(simd, input, g, filter, bias, &ty[..ny], ox, cb),
+                    );
+                    ox += 1;
+                }
+            }
+            if !ep.is_identity() {
+                for ox in 0..g.ow {
+                    let a = orow + ox * c;
+                    ep.apply(&mut out[a..a + c], a, 0);
+                }
+            }
+        }
+    }
+
     /// [`super::depthwise`] with each 8-channel accumulator kept in a register over all
     /// taps (one store per output vector instead of a load and a store per tap). Needs
     /// `c % 8 == 0` and kernels of at most [`MAX_TAPS`] per axis; the caller checks.
@@ -551,6 +721,10 @@ pub fn depthwise_at(
 ) {
     match level {
         #[cfg(target_arch = "x86_64")]
+        Level::V3(simd) if g.ic >= 8 && g.win.kh == 3 && g.win.kw == 3 && g.win.dh == 1 && g.win.dw == 1 => {
+            v3::depthwise3x3(simd, input, g, filter, bias, ep, out)
+        }
+        #[cfg(target_arch = "x86_64")]
         Level::V3(simd) if g.ic % 8 == 0 && g.win.kh <= v3::MAX_TAPS && g.win.kw <= v3::MAX_TAPS => {
             v3::depthwise(simd, input, g, filter, bias, ep, out)
         }
@@ -565,6 +739,36 @@ pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'
         Level::Portable => gemm(a, rows, w, ep, out),
         #[cfg(target_arch = "x86_64")]
         Level::V3(simd) => v3::gemm(simd, a, rows, w, ep, out),
+    }
+}
+
+/// A convolution through im2col, chunk by chunk ([`im2col_chunk_rows`] output pixels):
+/// each chunk's patches are built in `col` (at least `im2col_chunk_rows(w.k) * w.k`
+/// floats) and multiplied while they are in L1, instead of writing the whole im2col
+/// matrix (1.8 MB for the landmark model's first layer) and reading it back.
+#[inline(always)]
+pub fn conv_im2col(
+    level: Level,
+    input: &[f32],
+    g: &Geom,
+    w: &Packed,
+    ep: &Epilogue<'_>,
+    col: &mut [f32],
+    out: &mut [f32],
+) {
+    let (rows, k, n) = (g.oh * g.ow, w.k, w.n);
+    let step = im2col_chunk_rows(k);
+    let mut p0 = 0;
+    while p0 < rows {
+        let p1 = (p0 + step).min(rows);
+        let c = &mut col[..(p1 - p0) * k];
+        im2col_rows(input, g, p0, p1, c);
+        let ep = Epilogue {
+            residual: ep.residual.map(|r| &r[p0 * n..]),
+            ..*ep
+        };
+        gemm_at(level, c, p1 - p0, w, &ep, &mut out[p0 * n..p1 * n]);
+        p0 = p1;
     }
 }
 
@@ -669,11 +873,30 @@ impl Geom {
 /// Fills `col` (`[oh * ow][kh * kw * ic]`) with the input patches, zeros outside.
 #[inline(always)]
 pub fn im2col(input: &[f32], g: &Geom, col: &mut [f32]) {
+    im2col_rows(input, g, 0, g.oh * g.ow, col);
+}
+
+/// Rows (output pixels) of [`im2col`] per chunk of [`conv_im2col`]: a multiple of the
+/// GEMM's row chunk, about 16 KiB of patches (at least one row chunk).
+pub fn im2col_chunk_rows(k: usize) -> usize {
+    (4096 / k.max(1) / CHUNK).max(1) * CHUNK
+}
+
+/// Rows `p0..p1` of [`im2col`] into `col[..(p1 - p0) * kh * kw * ic]`.
+#[inline(always)]
+pub fn im2col_rows(input: &[f32], g: &Geom, p0: usize, p1: usize, col: &mut [f32]) {
     let c = g.ic;
     let kk = g.win.kh * g.win.kw * c;
-    for oy in 0..g.oh {
-        for ox in 0..g.ow {
-            let row = &mut col[(oy * g.ow + ox) * kk..(oy * g.ow + ox + 1) * kk];
+    let (mut oy, mut ox) = (p0 / g.ow, p0 % g.ow);
+    for p in p0..p1 {
+        if ox == g.ow {
+            (oy, ox) = (oy + 1, 0);
+        }
+        let x = ox;
+        ox += 1;
+        {
+            let ox = x;
+            let row = &mut col[(p - p0) * kk..(p - p0 + 1) * kk];
             for ky in 0..g.win.kh {
                 let seg = g.win.kw * c;
                 let dst = &mut row[ky * seg..(ky + 1) * seg];
@@ -947,9 +1170,12 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(16);
         for case in 0..60 {
             let k = [1usize, 2, 3, 5][case % 4];
+            // Up to 40x40 outputs: several chunks of im2col rows.
+            let big = case % 5 == 0;
             let s = 1 + (case / 4) % 2;
             let padding = if case % 3 == 0 { Padding::Valid } else { Padding::Same };
-            let (ih, iw) = (rng.random_range(k..12), rng.random_range(k..12));
+            let top = if big { 40 } else { 12 };
+            let (ih, iw) = (rng.random_range(k..top), rng.random_range(k..top));
             let ic = rng.random_range(1..20);
             let oc = rng.random_range(1..40);
             let win = Window {
@@ -979,6 +1205,26 @@ mod tests {
                 let mut col = vec![0.0; g.im2col_len()];
                 im2col(&input, &g, &mut col);
                 gemm(&col, g.oh * g.ow, &packed, &Epilogue::act(act), &mut got);
+                // Chunk by chunk through a scratch of one chunk, with a residual.
+                let res = rnd(&mut rng, g.oh * g.ow * oc);
+                let ep = Epilogue {
+                    act,
+                    residual: Some(&res),
+                    post: Post::Relu,
+                };
+                let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
+                let mut scratch = vec![0.0; rows * k * k * ic];
+                for level in [Level::Portable, Level::detect()] {
+                    let mut chunked = vec![0.0; g.oh * g.ow * oc];
+                    conv_im2col(level, &input, &g, &packed, &ep, &mut scratch, &mut chunked);
+                    let d = chunked
+                        .iter()
+                        .zip(&want)
+                        .zip(&res)
+                        .map(|((c, w), r)| (c - (w + r).max(0.0)).abs())
+                        .fold(0.0, f32::max);
+                    assert!(d < 1e-4, "case {case} {level:?} chunked: max difference {d}");
+                }
             }
             let d = max_diff(&got, &want);
             assert!(d < 1e-4, "case {case}: max difference {d}");
@@ -1030,16 +1276,18 @@ mod tests {
     #[test]
     fn depthwise_fast_matches_reference_on_random_shapes() {
         let mut rng = ChaCha8Rng::seed_from_u64(17);
-        for case in 0..40 {
+        for case in 0..80 {
             let k = [3usize, 5, 2][case % 3];
             let s = 1 + case % 2;
             let padding = if case % 4 == 0 { Padding::Valid } else { Padding::Same };
             let (ih, iw) = (rng.random_range(k..14), rng.random_range(k..14));
-            // Multiples of 8 exercise the register path, others the portable one.
-            let c = if case % 2 == 0 {
-                8 * rng.random_range(1..7)
-            } else {
-                rng.random_range(1..50)
+            // Multiples of 8 and other counts >= 8 exercise the register paths (3x3: any
+            // count >= 8, blocks overlapping at the end), counts below 8 the portable one.
+            // (Both strides with both kinds of channel counts.)
+            let c = match case % 8 {
+                0 | 1 => 8 * rng.random_range(1..7),
+                2 | 3 => rng.random_range(9..50),
+                _ => rng.random_range(1..50),
             };
             let win = Window {
                 kh: k,
