@@ -137,7 +137,10 @@ pub fn qp_cost(h: &[f64], g: &[f64], x: &[f64]) -> f64 {
 fn kkt_violation(x: &[f64], grad: &[f64], lo: &[f64], hi: &[f64]) -> f64 {
     let mut v = 0.0f64;
     for i in 0..x.len() {
-        let vi = if x[i] <= lo[i] {
+        // a fixed variable (lo == hi) has no feasible direction: any gradient is optimal there
+        let vi = if lo[i] >= hi[i] {
+            0.0
+        } else if x[i] <= lo[i] {
             (-grad[i]).max(0.0)
         } else if x[i] >= hi[i] {
             grad[i].max(0.0)
@@ -837,5 +840,19 @@ mod tests {
         let o = solve_box_qp(&h, &g, &[-inf; 2], &[inf; 2], &mut x, &QpOptions::default(), &mut ws);
         assert!(o.converged);
         assert!((x[0] - 1.0 / 3.0).abs() < 1e-12 && (x[1] - 1.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn fixed_variable_pulled_outwards_is_optimal() {
+        // variable 1 is fixed at 0 (lo == hi) while the data pull it up: the active-set method
+        // must report convergence (no feasible direction), not fall back to projected Newton
+        let h = [2.0, 0.5, 0.5, 1.0];
+        let g = [1.0, 4.0];
+        let mut x = [0.0, 0.0];
+        let mut ws = QpWorkspace::new(2);
+        let o = active_set(&h, &g, &[0.0; 2], &[1.0, 0.0], &mut x, &QpOptions::default(), &mut ws);
+        assert!(o.converged, "{o:?}");
+        assert!(o.kkt_violation < 1e-12, "{o:?}");
+        assert!((x[0] - 0.5).abs() < 1e-12 && x[1] == 0.0, "{x:?}");
     }
 }
