@@ -1,5 +1,5 @@
-//! The default rig used when `facecap capture` gets no `--rig`: built here, from no
-//! external file.
+//! The default rig used when `facecap capture` gets no `--rig`: built here at start-up
+//! from the mean face below and the canonical face mesh in the model cache (no rig file).
 //!
 //! * **Neutral landmarks**: a 68-point 3D mean face (iBUG order, centimetres, +Y up,
 //!   +Z out of the face). The numbers are the 68 landmark vertices of the ICT-FaceKit
