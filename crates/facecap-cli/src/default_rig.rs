@@ -415,10 +415,9 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[4, 5], Vector3::new(-0.2, 0.0, 0.1));
             set(&[11, 12], Vector3::new(0.2, 0.0, 0.1));
         }
-        "cheekSquintLeft" | "cheekSquintRight" => {
-            let low: [usize; 2] = if name.ends_with("Left") { [46, 47] } else { [40, 41] };
-            set(&low, Vector3::new(0.0, 0.08, 0.0));
-        }
+        // cheekSquint raises the cheek below the lower lid, not the lid's landmarks (that is
+        // eyeSquint; with both on the lid the 68 points could not tell them apart): its
+        // motion is in `mesh_handles` only
         "noseSneerLeft" | "noseSneerRight" => {
             let (wing, brow) = if name.ends_with("Left") {
                 ([34, 35], 22)

@@ -18,7 +18,7 @@
 //! and ARKit's antagonist pairs (`eyeWide` vs `eyeBlink`/`eyeSquint`, `browDown` vs
 //! `browInnerUp`/`browOuterUp`, `mouthSmile` vs `mouthFrown`, `mouthPucker` vs
 //! `mouthStretch`/`mouthSmile`, `mouthFunnel` vs `mouthStretch`, `mouthLeft` vs
-//! `mouthRight`, `jawLeft` vs `jawRight`) are exclusive; blinks, the fastest action, get a
+//! `mouthRight`, `jawLeft` vs `jawRight`, `mouthPress` vs `mouthFunnel`) are exclusive; blinks, the fastest action, get a
 //! tenth of the temporal weight. `docs/expressions.md` has the table
 //! for the built-in rig and the ICT rig.
 
@@ -214,7 +214,7 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
                 ((&a * x - &b).norm() / motion).clamp(0.0, 1.0)
             };
             let closest = (0..n)
-                .filter(|&j| j != k && norms[j] > 0.0)
+                .filter(|&j| j != k && norms[j] > 0.0 && motion > 0.0)
                 .map(|j| (j, fields.column(k).dot(&fields.column(j)) / (motion * norms[j])))
                 .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()))
                 .map(|(j, c)| (rig.names[j].clone(), c));
