@@ -694,6 +694,28 @@ mod tests {
         }
     }
 
+    /// The rendered rig shows open eyes as dark openings between the lids (the mesh has
+    /// no vertex inside an eye opening to carry the tone) and closes them on a blink.
+    #[test]
+    fn rendered_eyes_are_open_at_rest_and_closed_in_a_blink() {
+        let Some((rig, map)) = rig() else { return };
+        let r = facecap_pipeline::render::RigRenderer::new(&rig, Some(&map)).unwrap();
+        let dark = |names: &[&str]| {
+            let w: Vec<f64> = rig
+                .targets
+                .iter()
+                .map(|t| if names.contains(&t.name.as_str()) { 1.0 } else { 0.0 })
+                .collect();
+            let img = r.render(&w, None, 256).unwrap();
+            img.enumerate_pixels()
+                .filter(|(_, y, p)| *y < 128 && p.0[0] < 90)
+                .count()
+        };
+        let (open, closed) = (dark(&[]), dark(&["eyeBlinkLeft", "eyeBlinkRight"]));
+        eprintln!("dark pixels in the upper half: at rest {open}, blink {closed}");
+        assert!(open >= closed + 100, "at rest {open}, blink {closed}");
+    }
+
     /// With `FACECAP_DEBUG_DIR` set, draws the rig at rest and at full weight of a few
     /// shapes (`default_rig_shapes.png`) to look at.
     #[test]

@@ -9,11 +9,14 @@
 //!   covered pixel), so a semi-transparent overlay blends only the front surface.
 //! * **Colours**: per vertex, from the rig's landmark map in the neutral's frontal plane:
 //!   lips (between the outer 48-59 and inner 60-67 lip contours), eye openings (36-41,
-//!   42-47) and brows (near 17-21, 22-26) get their own tones; the rest is skin.
+//!   42-47) and brows (near 17-21, 22-26) get their own tones; the rest is skin. Triangles
+//!   whose centre lies inside an eye opening are drawn dark (the eye between the lids), so
+//!   an open eye reads as open on meshes with no vertex inside the opening.
 //! * **Mouth interior**: the polygon of the inner lip contour (60-67) is filled with a
 //!   dark mouth colour *behind* every surface, so an open mouth shows a dark cavity
 //!   wherever the mesh has a hole there (the built-in rig has one) instead of stretched
-//!   or folded skin.
+//!   or folded skin. The polygons of the eyes (36-41, 42-47) get a dark eye colour the
+//!   same way, for meshes with holes for the eyes.
 //!
 //! Conventions: rigs are +Y up, +Z out of the face (glTF); poses are
 //! [`ModelToCamera`] (camera x right, y down, z forward); image pixels have their
@@ -35,6 +38,8 @@ const SKIN: [f32; 3] = [0.86, 0.70, 0.60];
 const LIPS: [f32; 3] = [0.72, 0.36, 0.38];
 /// Eye-opening albedo.
 const EYES: [f32; 3] = [0.58, 0.46, 0.44];
+/// Albedo of the triangles spanning an eye opening (the eye seen between the lids).
+const EYE_OPENING: [f32; 3] = [0.30, 0.25, 0.25];
 /// Tint of the mesh drawn over a video frame ([`View::Camera`]), mixed into the albedo
 /// by [`OVERLAY_TINT_MIX`] so the overlay stands out from the skin under it.
 const OVERLAY_TINT: [f32; 3] = [0.35, 0.65, 1.0];
@@ -44,6 +49,10 @@ const OVERLAY_TINT_MIX: f32 = 0.6;
 const BROWS: [f32; 3] = [0.42, 0.30, 0.24];
 /// Mouth cavity colour.
 const MOUTH: [u8; 3] = [58, 18, 24];
+/// Colour behind an eye opening (a mesh with holes for the eyes shows it there).
+const EYE_CAVITY: [u8; 3] = [66, 54, 54];
+/// Growth of an eye's landmark polygon for its cavity (about its centre).
+const EYE_CAVITY_GROW: f64 = 1.4;
 /// Ambient light fraction.
 const AMBIENT: f32 = 0.28;
 /// Specular strength (Blinn-Phong, exponent 16: four squarings).
@@ -88,6 +97,8 @@ pub struct RenderWorkspace {
     id: Vec<u32>,
     setup: Vec<TriSetup>,
     lit: Vec<[f32; 3]>,
+    /// Per vertex: the light factor on the albedo and the specular term.
+    shade: Vec<[f32; 2]>,
 }
 
 /// Screen-space set-up of one triangle (see [`RigRenderer::draw`]).
@@ -112,7 +123,13 @@ pub struct RigRenderer {
     colours: Vec<[f32; 3]>,
     /// `colours` mixed with the overlay tint ([`View::Camera`]).
     tinted: Vec<[f32; 3]>,
+    /// Triangles across an eye opening (centroid inside the eye's six landmarks in the
+    /// neutral's frontal plane): drawn with [`EYE_OPENING`], whatever their corners'
+    /// colours (a mesh with a hole for the eye has no vertex inside the opening to carry it).
+    eye_triangles: Vec<bool>,
     mouth: Option<[u32; 8]>,
+    /// The six landmark vertices of each eye, for the eye cavity.
+    eyes: Vec<[u32; 6]>,
     centre: Vector3<f64>,
     radius: f64,
 }
@@ -169,7 +186,9 @@ impl RigRenderer {
             .fold(0.0f64, f64::max)
             .max(1e-9);
         let mut colours = vec![SKIN; n];
+        let mut eye_triangles = vec![false; mesh.base.triangles.len()];
         let mut mouth = None;
+        let mut eyes = Vec::new();
         if let Some(m) = map {
             let lm = |ids: &[usize]| -> Option<Vec<Vector3<f64>>> {
                 ids.iter().map(|&i| m.vertices[i].map(|v| pos[v as usize])).collect()
@@ -195,6 +214,13 @@ impl RigRenderer {
             for eye in facecap_core::landmarks::EYES {
                 if let Some(e) = lm(&eye) {
                     paint(&e, None, EYES);
+                    let (p2, zmin) = (xy(&e), front_of(&e));
+                    for (flag, t) in eye_triangles.iter_mut().zip(&mesh.base.triangles) {
+                        let c = t.iter().fold(Vector3::zeros(), |a, &i| a + pos[i as usize]) / 3.0;
+                        if c.z >= zmin && inside(&p2, c.x, c.y) {
+                            *flag = true;
+                        }
+                    }
                 }
             }
             for brow in [17..22usize, 22..27] {
@@ -215,6 +241,12 @@ impl RigRenderer {
             }
             let ids: Option<Vec<u32>> = INNER_LIP.iter().map(|&i| m.vertices[i]).collect();
             mouth = ids.and_then(|v| <[u32; 8]>::try_from(v).ok());
+            for eye in facecap_core::landmarks::EYES {
+                let ids: Option<Vec<u32>> = eye.iter().map(|&i| m.vertices[i]).collect();
+                if let Some(e) = ids.and_then(|v| <[u32; 6]>::try_from(v).ok()) {
+                    eyes.push(e);
+                }
+            }
         }
         let tinted = colours
             .iter()
@@ -224,7 +256,9 @@ impl RigRenderer {
             mesh: mesh.clone(),
             colours,
             tinted,
+            eye_triangles,
             mouth,
+            eyes,
             centre,
             radius,
         })
@@ -325,17 +359,25 @@ impl RigRenderer {
         ws.id.resize(pixels, u32::MAX);
         ws.setup.clear();
         ws.setup.resize(self.mesh.base.triangles.len(), TriSetup::default());
-        // Mouth cavity: behind every surface.
-        if let Some(ids) = self.mouth {
-            let poly: Vec<(f64, f64)> = ids
+        // Mouth and eye cavities: behind every surface.
+        // (an eye's polygon grown about its centre: a rig's eye landmarks may sit inside
+        // the lid edge, and whatever the cavity overfills is drawn over by the skin)
+        let cavities = self.mouth.iter().map(|ids| (&ids[..], MOUTH, 1.0));
+        for (ids, colour, grow) in cavities.chain(self.eyes.iter().map(|ids| (&ids[..], EYE_CAVITY, EYE_CAVITY_GROW))) {
+            let mut poly: Vec<(f64, f64)> = ids
                 .iter()
                 .map(|&v| {
                     let s = ws.screen[v as usize];
                     (f64::from(s[0]), f64::from(s[1]))
                 })
                 .collect();
+            let k = poly.len() as f64;
+            let (cx, cy) = poly.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 / k, a.1 + p.1 / k));
+            for p in &mut poly {
+                *p = (cx + grow * (p.0 - cx), cy + grow * (p.1 - cy));
+            }
             if poly.iter().all(|p| p.0.is_finite() && p.1.is_finite()) {
-                fill_polygon(img, &poly, MOUTH, alpha);
+                fill_polygon(img, &poly, colour, alpha);
             }
         }
         // Lighting per vertex (Gouraud: the smooth vertex normals lit once, the colours
@@ -345,25 +387,32 @@ impl RigRenderer {
         let ortho_eye = Vector3::new(0.0f32, 0.0, 1.0);
         let ortho_half = (light + ortho_eye).normalize();
         let colours = if is_ortho { &self.colours } else { &self.tinted };
+        ws.shade.clear();
+        ws.shade.extend(ws.normals.iter().zip(&ws.view).map(|(n, v)| {
+            let (eye, half) = if is_ortho {
+                (ortho_eye, ortho_half)
+            } else {
+                let e = (-v).try_normalize(1e-12).unwrap_or(ortho_eye);
+                (e, (light + e).normalize())
+            };
+            let nrm = if n.dot(&eye) < 0.0 { -n } else { *n };
+            let diffuse = nrm.dot(&light).max(0.0);
+            let mut spec = nrm.dot(&half).max(0.0);
+            for _ in 0..4 {
+                spec *= spec;
+            }
+            spec *= SPECULAR;
+            [AMBIENT + (1.0 - AMBIENT) * diffuse, spec]
+        }));
+        let lit_with = |albedo: &[f32; 3], [shade, spec]: [f32; 2]| albedo.map(|c| (c * shade + spec).min(1.0) * 255.0);
         ws.lit.clear();
         ws.lit
-            .extend(ws.normals.iter().zip(&ws.view).zip(colours).map(|((n, v), albedo)| {
-                let (eye, half) = if is_ortho {
-                    (ortho_eye, ortho_half)
-                } else {
-                    let e = (-v).try_normalize(1e-12).unwrap_or(ortho_eye);
-                    (e, (light + e).normalize())
-                };
-                let nrm = if n.dot(&eye) < 0.0 { -n } else { *n };
-                let diffuse = nrm.dot(&light).max(0.0);
-                let mut spec = nrm.dot(&half).max(0.0);
-                for _ in 0..4 {
-                    spec *= spec;
-                }
-                spec *= SPECULAR;
-                let shade = AMBIENT + (1.0 - AMBIENT) * diffuse;
-                albedo.map(|c| (c * shade + spec).min(1.0) * 255.0)
-            }));
+            .extend(colours.iter().zip(&ws.shade).map(|(albedo, &sh)| lit_with(albedo, sh)));
+        let eye_albedo = if is_ortho {
+            EYE_OPENING
+        } else {
+            [0, 1, 2].map(|ch| EYE_OPENING[ch] + OVERLAY_TINT_MIX * (OVERLAY_TINT[ch] - EYE_OPENING[ch]))
+        };
         // Pass 1: depth and triangle id. Per triangle, the barycentric coordinates are
         // planes in screen space relative to its first vertex (w0 = 1 + a0 dx + b0 dy,
         // w1 = a1 dx + b1 dy), and each row visits only the span where all three can be
@@ -401,7 +450,15 @@ impl RigRenderer {
             let (a0, b0) = ((p1[1] - p2[1]) * inv, (p2[0] - p1[0]) * inv);
             let (a1, b1) = ((p2[1] - p0[1]) * inv, (p0[0] - p2[0]) * inv);
             // colour = la w0 + lb w1 + lc w2 with w2 = 1 - w0 - w1: a plane in x, y
-            let (la, lb, lc) = (ws.lit[a], ws.lit[b], ws.lit[c]);
+            let (la, lb, lc) = if self.eye_triangles[k] {
+                (
+                    lit_with(&eye_albedo, ws.shade[a]),
+                    lit_with(&eye_albedo, ws.shade[b]),
+                    lit_with(&eye_albedo, ws.shade[c]),
+                )
+            } else {
+                (ws.lit[a], ws.lit[b], ws.lit[c])
+            };
             let col = [0, 1, 2].map(|ch| {
                 let (da, db) = (la[ch] - lc[ch], lb[ch] - lc[ch]);
                 let (gx, gy) = (da * a0 + db * a1, da * b0 + db * b1);
