@@ -287,7 +287,13 @@ impl DensePoints {
 /// same on small and large faces), `e_i = 0` for `fixed` shapes, each landmark's squared
 /// residual multiplied by `point_weights[l]`, and for each `exclusive` pair `(a, b)` at most
 /// one of the two is non-zero: when both are after a solve, the smaller one is held at 0 and
-/// the frame is solved again (up to [`MAX_EXCLUSIVE_ROUNDS`] rounds).
+/// the frame is solved again (up to [`MAX_EXCLUSIVE_ROUNDS`] rounds). For each `coupled`
+/// pair `(child, parent)` the child acts only together with its parent, `w_child <=
+/// w_parent` (ARKit's `mouthClose` closes the lips of an open jaw: alone it would lift the
+/// lower lip of a closed mouth): the solver's own variables are `z_parent = w_parent -
+/// w_child` and `z_child = w_child`, each in `[0, 1]`, the child's column moving the points
+/// by both shapes' deltas (`w_parent` is clamped to 1); the ridge and the temporal term
+/// act on those variables.
 ///
 /// [`ShapePriors::neutral`] changes nothing; [`crate::observability::default_priors`] is the
 /// measured default for a rig.
@@ -302,6 +308,9 @@ pub struct ShapePriors {
     pub temporal: Vec<f64>,
     /// Shape pairs that must not both be active.
     pub exclusive: Vec<(usize, usize)>,
+    /// `(child, parent)`: the child is active only with the parent, `w_child <= w_parent`.
+    /// A child has one parent and is no one's parent.
+    pub coupled: Vec<(usize, usize)>,
     /// Weight of each landmark's squared residual, `[0, 1e6]`.
     pub point_weights: [f64; NUM_LANDMARKS],
 }
@@ -317,6 +326,7 @@ impl ShapePriors {
             fixed: vec![false; n],
             temporal: vec![1.0; n],
             exclusive: Vec::new(),
+            coupled: Vec::new(),
             point_weights: [1.0; NUM_LANDMARKS],
         }
     }
@@ -348,7 +358,32 @@ impl ShapePriors {
                 ));
             }
         }
+        for (i, &(c, p)) in self.coupled.iter().enumerate() {
+            let again = self.coupled[..i].iter().any(|&(c2, _)| c2 == c);
+            let chained = self.coupled.iter().any(|&(_, p2)| p2 == c);
+            if c >= n || p >= n || c == p || again || chained {
+                return Err(Error::invalid(
+                    "coupled",
+                    format!("({c}, {p})"),
+                    format!("two different shape indices < {n}, each child once and no child a parent"),
+                ));
+            }
+        }
         Ok(())
+    }
+}
+
+/// `rows` of per-shape deltas (`n` per row) with each coupled child's column moved by its
+/// parent's too (`sign` 1) or back (`sign` -1): the solver's variables of [`ShapePriors`].
+fn couple_columns(rows: &mut [Vector3<f64>], n: usize, coupled: &[(usize, usize)], sign: f64) {
+    if n == 0 || coupled.is_empty() {
+        return;
+    }
+    for row in rows.chunks_exact_mut(n) {
+        for &(c, p) in coupled {
+            let d = row[p] * sign;
+            row[c] += d;
+        }
     }
 }
 
@@ -535,6 +570,13 @@ impl Exact3dSolver {
         for (w, &l) in self.sqrt_w.iter_mut().zip(&self.idx) {
             *w = priors.point_weights[l].sqrt();
         }
+        let n = self.n;
+        couple_columns(&mut self.deltas, n, &self.priors.coupled, -1.0);
+        couple_columns(&mut self.deltas, n, &priors.coupled, 1.0);
+        for slot in &mut self.contour {
+            couple_columns(&mut slot.deltas, n, &self.priors.coupled, -1.0);
+            couple_columns(&mut slot.deltas, n, &priors.coupled, 1.0);
+        }
         self.priors = priors;
         Ok(self)
     }
@@ -558,9 +600,11 @@ impl Exact3dSolver {
         self.deltas.truncate(m0 * self.n);
         self.sqrt_w.truncate(m0);
         self.neutral.extend_from_slice(&points.neutral);
-        self.deltas.extend_from_slice(&points.deltas);
-        self.sqrt_w
-            .extend(std::iter::repeat(points.weight.sqrt()).take(points.len()));
+        let count = points.len();
+        let mut deltas = points.deltas;
+        couple_columns(&mut deltas, self.n, &self.priors.coupled, 1.0);
+        self.deltas.extend_from_slice(&deltas);
+        self.sqrt_w.extend(std::iter::repeat(points.weight.sqrt()).take(count));
         self.dense_sources = points.sources;
         Ok(self)
     }
@@ -594,7 +638,7 @@ impl Exact3dSolver {
         let p = Pose::from_model_to_camera(pose);
         let mut cw = self.contour_work();
         self.select_contour(&p, &mut cw);
-        self.pose_points(&cw, weights, &mut posed);
+        self.pose_points(&cw, &self.to_variables(weights), &mut posed);
         let k = &self.params.camera;
         let rt = p.r.inverse();
         let mut out = Vec::with_capacity(self.dense_sources.len());
@@ -631,6 +675,27 @@ impl Exact3dSolver {
     /// The camera.
     pub fn camera(&self) -> &Intrinsics {
         &self.params.camera
+    }
+
+    /// The solver's variables to rig weights in place (`ShapePriors::coupled`: each
+    /// parent's weight is its own variable plus its children's, at most 1).
+    fn to_weights(&self, e: &mut [f64]) {
+        for &(c, p) in &self.priors.coupled {
+            e[p] = (e[p] + e[c]).min(1.0);
+        }
+    }
+
+    /// Rig weights to the solver's variables (the inverse of [`Self::to_weights`]; a
+    /// child above its parent counts as much as the parent).
+    fn to_variables(&self, w: &[f64]) -> Vec<f64> {
+        let mut z = w.to_vec();
+        for &(c, p) in &self.priors.coupled {
+            z[c] = w[c].min(w[p]);
+        }
+        for &(c, p) in &self.priors.coupled {
+            z[p] -= z[c];
+        }
+        z
     }
 
     fn pose_points(&self, cw: &ContourWork, e: &[f64], out: &mut [Vector3<f64>]) {
@@ -1185,8 +1250,10 @@ impl Exact3dSolver {
             out.fitted[l] = Point2::new(k.fx * c.x / c.z + k.cx, k.fy * c.y / c.z + k.cy);
         }
         out.weights.copy_from_slice(&ws.e);
+        self.to_weights(&mut out.weights);
         out.pose = Some(pose.to_model_to_camera());
         out.similarity = None;
+        // the state keeps the solver's own variables (see `ShapePriors::coupled`)
         state.weights.copy_from_slice(&ws.e);
         state.pose = out.pose;
         state.has_previous = true;
@@ -1227,7 +1294,9 @@ impl Exact3dSolver {
         let pose = Pose::from_model_to_camera(pose);
         let mut cw = self.contour_work();
         self.select_contour(&pose, &mut cw);
-        Ok(self.cost(&cw, &pose, weights, &mut posed, &obs, &rho, prev))
+        let z = self.to_variables(weights);
+        let prev = prev.map(|p| self.to_variables(p));
+        Ok(self.cost(&cw, &pose, &z, &mut posed, &obs, &rho, prev.as_deref()))
     }
 
     /// The best pose for fixed weights (affine start + rigid LM to convergence) and its
@@ -1241,7 +1310,7 @@ impl Exact3dSolver {
                 got: weights.len(),
             });
         }
-        ws.e.copy_from_slice(weights);
+        ws.e.copy_from_slice(&self.to_variables(weights));
         ws.m = self.idx.len();
         for (j, &l) in self.idx.iter().enumerate() {
             ws.obs[2 * j] = input.points[l].x;

@@ -85,6 +85,13 @@ const EXCLUSIVE: [(&str, &str); 11] = [
     ("mouthPress", "mouthFunnel"),
 ];
 
+/// Coupled shapes by ARKit base name, `(child, parent)`: the child acts only with its
+/// parent ([`ShapePriors::coupled`]). ARKit's `mouthClose` is the lips closing over an open
+/// jaw (its weight never exceeds `jawOpen`'s); solved alone it lifts the lower lip of a
+/// closed mouth and takes the motion of `mouthRollLower`, `mouthPress` and
+/// `mouthShrugLower`.
+const COUPLED: [(&str, &str); 1] = [("mouthClose", "jawOpen")];
+
 /// `(base, side)` of an ARKit-style name: `eyeBlinkLeft` / `eyeBlink_L` -> (`eyeBlink`, 'L');
 /// `mouthLeft`, `jawRight` are directions, not sides.
 pub fn split_side(name: &str) -> (&str, Option<char>) {
@@ -126,6 +133,39 @@ fn unseen_reason(name: &str, motion: f64) -> Option<&'static str> {
         } else {
             None
         })
+}
+
+/// ARKit's coupled shapes present in `rig` (see [`COUPLED`]), as `(child, parent)` index
+/// pairs.
+pub fn coupled_pairs(rig: &BlendshapeRig) -> Vec<(usize, usize)> {
+    let index = |name: &str| rig.names.iter().position(|n| n == name);
+    let mut out = Vec::new();
+    for (child, parent) in COUPLED {
+        for side in ["", "Left", "Right", "_L", "_R"] {
+            let (c, p) = (format!("{child}{side}"), format!("{parent}{side}"));
+            let p = index(&p).or_else(|| index(parent));
+            if let (Some(c), Some(p)) = (index(&c), p) {
+                if c != p && !out.iter().any(|&(c2, _)| c2 == c) {
+                    out.push((c, p));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// `rig` with each coupled child's deltas moved by its parent's too: the shapes the
+/// solver's variables stand for ([`ShapePriors::coupled`]).
+pub fn coupled_rig(rig: &BlendshapeRig, coupled: &[(usize, usize)]) -> BlendshapeRig {
+    let mut out = rig.clone();
+    out.mesh = None;
+    out.contour = None;
+    for &(c, p) in coupled {
+        let d = rig.deltas.index_axis(ndarray::Axis(0), p).to_owned();
+        let mut child = out.deltas.index_axis_mut(ndarray::Axis(0), c);
+        child += &d;
+    }
+    out
 }
 
 /// ARKit antagonist pairs present in `rig` (module docs), as index pairs.
@@ -233,7 +273,7 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
 /// The default priors of `rig` for 68-landmark input (module docs): unseen shapes fixed,
 /// ridge `BASE_RIDGE / max(independence, 0.1)^2` on the others, ARKit antagonists
 /// exclusive, the temporal weight cut to [`BLINK_TEMPORAL`] on blinks, every landmark
-/// weighted 1.
+/// weighted 1 (ARKit's coupled shapes are opt-in: [`with_arkit_coupling`]).
 pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
     let table = analyse(rig);
     let n = rig.num_shapes();
@@ -247,6 +287,30 @@ pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
     }
     p.exclusive = exclusive_pairs(rig);
     p
+}
+
+/// `priors` with ARKit's coupled shapes of `rig` ([`COUPLED`], [`ShapePriors::coupled`]):
+/// each coupled child's ridge re-measured on what the landmarks see of its variable (the
+/// child with its parent's motion); the parent keeps its own. Not part of
+/// [`default_priors`]: on the shared clips it makes `mouthClose` follow MediaPipe's
+/// (r 0.36 -> 0.98 with the face mesh front end) but lowers `jawOpen` (0.82 -> 0.75 with
+/// dlib's 68 points) and pins the built-in rig's `mouthShrugLower` on resting pressed lips
+/// (docs/expressions.md, "Coupling mouthClose to jawOpen").
+pub fn with_arkit_coupling(rig: &BlendshapeRig, mut priors: ShapePriors) -> ShapePriors {
+    let coupled = coupled_pairs(rig);
+    if !coupled.is_empty() {
+        let with = analyse(&coupled_rig(rig, &coupled));
+        for &(c, _) in &coupled {
+            if c >= priors.ridge.len() || priors.fixed.get(c).copied().unwrap_or(true) {
+                continue;
+            }
+            // a variable that moves no landmark is held at 0, like any unseen shape
+            priors.fixed[c] = with[c].fixed_because.is_some();
+            priors.ridge[c] = BASE_RIDGE / with[c].independence.max(0.1).powi(2);
+        }
+    }
+    priors.coupled = coupled;
+    priors
 }
 
 #[cfg(test)]
@@ -283,6 +347,42 @@ mod tests {
         assert!(t[1].independence < 1e-6, "{:?}", t[1]);
         assert!((t[2].independence - 1.0).abs() < 1e-9, "{:?}", t[2]);
         assert!((t[0].closest.as_ref().unwrap().1 - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn mouth_close_is_coupled_to_the_jaw_and_its_ridge_measured_with_it() {
+        let mut rig = BlendshapeRig::synthetic(4, 5);
+        rig.names = ["jawOpen", "mouthSmile_L", "mouthClose", "mouthPucker"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        assert_eq!(coupled_pairs(&rig), vec![(2, 0)]);
+        // mouthClose := -jawOpen: alone it undoes the jaw, so only with it is it seen as
+        // nothing at all (the coupled variable moves no landmark)
+        for l in 0..NUM_LANDMARKS {
+            for c in 0..3 {
+                rig.deltas[[2, l, c]] = -rig.deltas[[0, l, c]];
+            }
+        }
+        let coupled = coupled_rig(&rig, &coupled_pairs(&rig));
+        assert!(coupled
+            .deltas
+            .index_axis(ndarray::Axis(0), 2)
+            .iter()
+            .all(|v| v.abs() < 1e-12));
+        let plain = default_priors(&rig);
+        assert!(plain.coupled.is_empty());
+        let p = with_arkit_coupling(&rig, plain.clone());
+        assert_eq!(p.coupled, vec![(2, 0)]);
+        // a variable the landmarks cannot see: held at 0, independence floored at 0.1
+        assert!(!plain.fixed[2] && p.fixed[2]);
+        assert!((p.ridge[2] - BASE_RIDGE / 0.01).abs() < 1e-9, "{}", p.ridge[2]);
+        // the parent keeps the ridge of its own motion
+        assert_eq!(p.ridge[0], plain.ridge[0]);
+        p.validate(4).unwrap();
+        let mut none = rig.clone();
+        none.names[0] = "jawDrop".into();
+        assert!(coupled_pairs(&none).is_empty());
     }
 
     #[test]

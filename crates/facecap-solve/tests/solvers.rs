@@ -343,3 +343,83 @@ fn exact3d_dense_points_recover_a_shape_the_landmarks_cannot_see() {
 fn dense_delta(points: &facecap_solve::DensePoints, j: usize, k: usize, n: usize) -> nalgebra::Vector3<f64> {
     points.deltas()[j * n + k]
 }
+
+/// The landmarks of `rig` at weights `w`, seen with `pose` (as `synth::generate` projects).
+fn project(
+    rig: &BlendshapeRig,
+    w: &[f64],
+    pose: &facecap_core::camera::ModelToCamera,
+    cam: &Intrinsics,
+) -> Landmarks68 {
+    Landmarks68::from_fn(|l| {
+        let q = pose.project(cam, &rig.landmark(l, w)).unwrap();
+        (q.x, q.y)
+    })
+}
+
+#[test]
+fn exact3d_coupled_child_acts_only_with_its_parent() {
+    let rig = BlendshapeRig::synthetic(16, 21);
+    let cam = camera();
+    let frames = generate(&rig, &cam, 640.0, &SynthParams::default(), 3, 4);
+    let (child, parent) = (5, 2);
+    let priors = facecap_solve::ShapePriors {
+        coupled: vec![(child, parent)],
+        ..facecap_solve::ShapePriors::neutral(16)
+    };
+    let s3 = Exact3dSolver::new(&rig, Exact3dParams::new(cam))
+        .unwrap()
+        .with_priors(priors.clone())
+        .unwrap();
+    for (i, f) in frames.iter().enumerate() {
+        // truth that keeps the coupling (child <= parent) is recovered exactly
+        let mut w = vec![0.0; 16];
+        w[parent] = 0.7;
+        w[child] = 0.4;
+        w[9] = 0.5;
+        let lm = project(&rig, &w, &f.pose, &cam);
+        let (o, r) = run(&s3, &lm);
+        let e = rmse(&o.weights, &w);
+        assert!(e < 0.01, "frame {i}: rmse {e}, {:?} vs {w:?}", o.weights);
+        // the reported cost is the objective at the reported (rig) weights
+        let f_at = s3.objective(&lm, &o.weights, o.pose.as_ref().unwrap(), None).unwrap();
+        assert!(
+            (f_at - r.cost).abs() <= 1e-6 * r.cost.abs().max(1.0),
+            "frame {i}: {f_at} vs {}",
+            r.cost
+        );
+        // truth that breaks it (the child alone) never comes out with the child above the parent
+        let mut alone = vec![0.0; 16];
+        alone[child] = 0.6;
+        let (o, _) = run(&s3, &project(&rig, &alone, &f.pose, &cam));
+        assert!(
+            o.weights[child] <= o.weights[parent] + 1e-12,
+            "frame {i}: child {} > parent {}",
+            o.weights[child],
+            o.weights[parent]
+        );
+        // without the coupling the same landmarks give the child alone
+        let free = Exact3dSolver::new(&rig, Exact3dParams::new(cam)).unwrap();
+        let (o, _) = run(&free, &project(&rig, &alone, &f.pose, &cam));
+        assert!(
+            (o.weights[child] - 0.6).abs() < 0.01 && o.weights[parent] < 0.01,
+            "{:?}",
+            o.weights
+        );
+    }
+    // priors twice: the second replaces the first's coupling, it does not add to it
+    let again = s3.with_priors(priors).unwrap();
+    let mut w = vec![0.0; 16];
+    w[parent] = 0.5;
+    w[child] = 0.5;
+    let (o, _) = run(&again, &project(&rig, &w, &frames[0].pose, &cam));
+    assert!(rmse(&o.weights, &w) < 0.01, "{:?}", o.weights);
+    // invalid couplings are errors
+    for bad in [vec![(3, 3)], vec![(3, 16)], vec![(3, 1), (3, 2)], vec![(3, 1), (4, 3)]] {
+        let p = facecap_solve::ShapePriors {
+            coupled: bad.clone(),
+            ..facecap_solve::ShapePriors::neutral(16)
+        };
+        assert!(p.validate(16).is_err(), "{bad:?}");
+    }
+}
