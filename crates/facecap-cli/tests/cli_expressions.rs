@@ -219,42 +219,86 @@ fn mesh_front_end_weights_follow_mediapipe() {
     assert!(mean >= 0.45, "ICT rig mean r {mean} (measured 0.52)");
 }
 
-/// Blinks against hand annotation (liveportrait_d9, docs/expressions.md "Eyes against hand
-/// annotation"): frames where the eyes are closed, looked at one by one, must reach
-/// eyeBlink >= 0.5 within +-2 frames; frames with open eyes must stay below 0.5. Measured
-/// with the mesh front end: 15 of 15 closed (lowest 0.72), open 0.07 / 0.10 / 0.01.
+/// Hand-annotated frames of the shared clips (docs/expressions.md "Eyes against hand
+/// annotation"), looked at one by one: liveportrait_d9 frames with both eyes closed, d9
+/// frames with open eyes, and liveportrait_d6 downward glances with open eyes.
+const D9_CLOSED: [usize; 15] = [16, 40, 143, 195, 310, 366, 386, 424, 452, 499, 522, 527, 533, 560, 563];
+const D9_OPEN: [usize; 3] = [150, 200, 545];
+const D6_GLANCES: [usize; 3] = [387, 437, 694];
+
+/// Captures `clip` with `extra` flags and returns its merged eyeBlink curve, or `None`
+/// (skipped) when the clip is absent.
+fn blink_curve(data: &Path, clip: &str, extra: &[&str]) -> Option<Vec<f64>> {
+    let video = data.join(format!("videos/{clip}.mp4"));
+    if !video.is_file() {
+        facecap_core::paths::skip_missing_data(&format!("blinks: {} absent", video.display()));
+        return None;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let st = facecap()
+        .args(["capture", "--quiet", "--no-preview", "--out"])
+        .arg(dir.path())
+        .arg(&video)
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    Some(curves(&dir.path().join(clip).join("weights.csv"), 4)["eyeBlink"].clone())
+}
+
+/// The largest eyeBlink within +-2 frames of `i`.
+fn peak(blink: &[f64], i: usize) -> f64 {
+    blink[i.saturating_sub(2)..(i + 3).min(blink.len())]
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max)
+}
+
+/// d9's annotated closed eyes must reach eyeBlink >= 0.5 (at least `caught` of 15) and its
+/// open eyes stay below 0.5.
+fn check_d9_blinks(blink: &[f64], caught: usize) {
+    let peaks: Vec<(usize, f64)> = D9_CLOSED.iter().map(|&i| (i, peak(blink, i))).collect();
+    eprintln!("closed: {peaks:?}");
+    let n = peaks.iter().filter(|(_, v)| *v >= 0.5).count();
+    assert!(n >= caught, "{n} of 15 annotated blinks reach 0.5: {peaks:?}");
+    for i in D9_OPEN {
+        assert!(peak(blink, i) < 0.5, "open eyes at {i}: eyeBlink {}", peak(blink, i));
+    }
+}
+
+/// Blinks against hand annotation with the mesh front end. Measured: 15 of 15 closed
+/// (lowest 0.72), open 0.07 / 0.10 / 0.01.
 #[test]
 fn mesh_front_end_blinks_match_hand_annotation() {
     let data = std::env::var_os("FACECAP_DATA")
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    let clip = data.join("videos/liveportrait_d9.mp4");
-    if !clip.is_file() || !mesh_models_present() {
-        facecap_core::paths::skip_missing_data("mesh_front_end_blinks: liveportrait_d9 or the face mesh models absent");
+    if !mesh_models_present() {
+        facecap_core::paths::skip_missing_data("mesh_front_end_blinks: the face mesh models absent");
         return;
     }
-    let dir = tempfile::tempdir().unwrap();
-    let st = facecap()
-        .args(["capture", "--quiet", "--no-preview", "--landmarks", "mesh", "--out"])
-        .arg(dir.path())
-        .arg(&clip)
-        .output()
-        .unwrap();
-    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
-    let blink = &curves(&dir.path().join("liveportrait_d9/weights.csv"), 4)["eyeBlink"];
-    let peak = |i: usize| {
-        blink[i.saturating_sub(2)..(i + 3).min(blink.len())]
-            .iter()
-            .copied()
-            .filter(|v| v.is_finite())
-            .fold(0.0, f64::max)
+    let Some(blink) = blink_curve(&data, "liveportrait_d9", &["--landmarks", "mesh"]) else {
+        return;
     };
-    let closed = [16, 40, 143, 195, 310, 366, 386, 424, 452, 499, 522, 527, 533, 560, 563];
-    let caught: Vec<(usize, f64)> = closed.iter().map(|&i| (i, peak(i))).collect();
-    eprintln!("closed: {caught:?}");
-    let n = caught.iter().filter(|(_, v)| *v >= 0.5).count();
-    assert!(n >= 14, "{n} of 15 annotated blinks reach 0.5: {caught:?}");
-    for i in [150, 200, 545] {
-        assert!(peak(i) < 0.5, "open eyes at {i}: eyeBlink {}", peak(i));
+    check_d9_blinks(&blink, 14);
+}
+
+/// Blinks against hand annotation with the defaults (dlib's 68 points, built-in rig, the
+/// smoothed clip). Measured 2026-12-04: 15 of 15 closed (lowest 0.58), open 0.02 / 0.12 /
+/// 0.02; d6 glances 0.41 / 0.21 / 0.14 (387 ends two frames after a real blink).
+#[test]
+fn default_blinks_match_hand_annotation_and_glances_stay_open() {
+    let (Some(data), true) = (shared_data(), models_present()) else {
+        facecap_core::paths::skip_missing_data("default_blinks: shared data or the dlib models absent");
+        return;
+    };
+    if let Some(blink) = blink_curve(&data, "liveportrait_d9", &[]) {
+        check_d9_blinks(&blink, 15);
+    }
+    if let Some(blink) = blink_curve(&data, "liveportrait_d6", &[]) {
+        for i in D6_GLANCES {
+            assert!(peak(&blink, i) < 0.5, "glance at {i}: eyeBlink {}", peak(&blink, i));
+        }
     }
 }
