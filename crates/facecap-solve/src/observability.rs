@@ -136,19 +136,12 @@ fn unseen_reason(name: &str, motion: f64) -> Option<&'static str> {
 }
 
 /// ARKit's coupled shapes present in `rig` (see [`COUPLED`]), as `(child, parent)` index
-/// pairs.
+/// pairs, matched by side as [`exclusive_pairs`]; a child keeps its first parent.
 pub fn coupled_pairs(rig: &BlendshapeRig) -> Vec<(usize, usize)> {
-    let index = |name: &str| rig.names.iter().position(|n| n == name);
-    let mut out = Vec::new();
-    for (child, parent) in COUPLED {
-        for side in ["", "Left", "Right", "_L", "_R"] {
-            let (c, p) = (format!("{child}{side}"), format!("{parent}{side}"));
-            let p = index(&p).or_else(|| index(parent));
-            if let (Some(c), Some(p)) = (index(&c), p) {
-                if c != p && !out.iter().any(|&(c2, _)| c2 == c) {
-                    out.push((c, p));
-                }
-            }
+    let mut out: Vec<(usize, usize)> = Vec::new();
+    for (c, p) in arkit_pairs(rig, &COUPLED) {
+        if !out.iter().any(|&(c2, _)| c2 == c) {
+            out.push((c, p));
         }
     }
     out
@@ -157,9 +150,15 @@ pub fn coupled_pairs(rig: &BlendshapeRig) -> Vec<(usize, usize)> {
 /// `rig` with each coupled child's deltas moved by its parent's too: the shapes the
 /// solver's variables stand for ([`ShapePriors::coupled`]).
 pub fn coupled_rig(rig: &BlendshapeRig, coupled: &[(usize, usize)]) -> BlendshapeRig {
-    let mut out = rig.clone();
-    out.mesh = None;
-    out.contour = None;
+    // the landmark fields only: the morph mesh is not needed (and large)
+    let mut out = BlendshapeRig {
+        names: rig.names.clone(),
+        neutral: rig.neutral.clone(),
+        deltas: rig.deltas.clone(),
+        mapped: rig.mapped,
+        mesh: None,
+        contour: None,
+    };
     for &(c, p) in coupled {
         let d = rig.deltas.index_axis(ndarray::Axis(0), p).to_owned();
         let mut child = out.deltas.index_axis_mut(ndarray::Axis(0), c);
@@ -170,6 +169,12 @@ pub fn coupled_rig(rig: &BlendshapeRig, coupled: &[(usize, usize)]) -> Blendshap
 
 /// ARKit antagonist pairs present in `rig` (module docs), as index pairs.
 pub fn exclusive_pairs(rig: &BlendshapeRig) -> Vec<(usize, usize)> {
+    arkit_pairs(rig, &EXCLUSIVE)
+}
+
+/// The index pairs of `rig` for a table of ARKit base-name pairs: sided names pair side by
+/// side, an unsided name pairs with either side.
+fn arkit_pairs(rig: &BlendshapeRig, table: &[(&str, &str)]) -> Vec<(usize, usize)> {
     let index = |base: &str, side: Option<char>| {
         rig.names.iter().position(|n| {
             let (b, s) = split_side(n);
@@ -177,7 +182,7 @@ pub fn exclusive_pairs(rig: &BlendshapeRig) -> Vec<(usize, usize)> {
         })
     };
     let mut out = Vec::new();
-    for (a, b) in EXCLUSIVE {
+    for &(a, b) in table {
         for side in [Some('L'), Some('R'), None] {
             if let (Some(i), Some(j)) = (index(a, side), index(b, side)) {
                 if i != j && !out.contains(&(i, j)) {
