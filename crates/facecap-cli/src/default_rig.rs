@@ -186,14 +186,16 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
     };
     match name {
         "jawOpen" => {
-            // Jaw rotates down: chin moves most, jaw angle points little.
+            // Jaw rotates down: chin moves most, jaw angle points little. Chin 2.4 cm, lower
+            // lip 2.25 cm at 1 (a wide open mouth; at 1.6 / 1.5 cm a yawn pinned the weight
+            // and pushed the rest into mouthLowerDown, docs/expressions.md "The neutral mouth").
             for i in 2..=14usize {
                 let w = (1.0 - (i as f64 - 8.0).abs() / 6.5).max(0.0);
-                set(&[i], Vector3::new(0.0, -1.6 * w, -0.4 * w));
+                set(&[i], Vector3::new(0.0, -2.4 * w, -0.6 * w));
             }
-            set(&[56, 57, 58, 65, 66, 67], Vector3::new(0.0, -1.5, -0.3));
-            set(&[55, 59], Vector3::new(0.0, -1.0, -0.2));
-            set(&[48, 54, 60, 64], Vector3::new(0.0, -0.5, -0.1));
+            set(&[56, 57, 58, 65, 66, 67], Vector3::new(0.0, -2.25, -0.45));
+            set(&[55, 59], Vector3::new(0.0, -1.5, -0.3));
+            set(&[48, 54, 60, 64], Vector3::new(0.0, -0.75, -0.15));
         }
         "mouthSmileLeft" | "mouthSmileRight" => {
             let (s, corner, inner, near) = if name.ends_with("Left") {
@@ -645,9 +647,9 @@ mod tests {
             let v = rig.base.positions[lm(i)];
             assert!((v.x as f64 - p[0]).abs() < 1e-5 && (v.z as f64 - p[2]).abs() < 1e-5);
         }
-        // jawOpen moves the chin down by 1.6 cm and leaves the brows and the upper lip alone.
+        // jawOpen moves the chin down by 2.4 cm and leaves the brows and the upper lip alone.
         let jaw = &rig.targets[0];
-        assert!((jaw.deltas[lm(8)].y + 1.6).abs() < 1e-5);
+        assert!((jaw.deltas[lm(8)].y + 2.4).abs() < 1e-5);
         assert!(jaw.deltas[lm(19)].norm() < 1e-6);
         for v in [0usize, 37, 267, 13, 82, 312] {
             assert!(

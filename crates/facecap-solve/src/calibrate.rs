@@ -50,6 +50,7 @@ use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
 /// | `alpha_z` | 500.0 | ridge on the depth offset | `[0, 1e9]` |
 /// | `identity_ridge` | 1.0 | ridge on the identity coefficients (unit-variance modes), (% IOD)^2 | `[0, 1e9]` |
 /// | `residual_offsets` | true | with identity modes, also fit the offset field on what they leave | |
+/// | `mouth_closed` | (0.0, 0.3) | the mouth and chin points' neutral is fitted on the frames whose mouth opening lies between these quantiles | as `eye_open` |
 /// | `eye_open` | (0.5, 0.95) | the lid points' neutral is fitted on the frames whose eye opening lies between these quantiles | `0 <= lo < hi <= 1`, or `None`: the resting frames |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SubjectParams {
@@ -75,6 +76,15 @@ pub struct SubjectParams {
     /// liveportrait_d3: eyeWide >= 0.95 on 19 % of the frames, mean 0.45, where MediaPipe's
     /// stays near 0). `None` fits the eye points on the resting frames like the rest.
     pub eye_open: Option<(f64, f64)>,
+    /// Quantiles of the mouth opening (inner-lip gap over the outer eye corners' distance, from the
+    /// tracked points) that pick the frames the mouth points (iBUG 48-67) and the chin's
+    /// contour points (4-12) are fitted on. The subject's neutral has the lips together (as
+    /// ARKit's); in speech most frames that count as resting have the lips apart, and fitted
+    /// on them the neutral mouth is half open: small openings then read as 0 (`jawOpen` is
+    /// clamped) and closed lips as `mouthClose` + `mouthShrugLower` (measured on
+    /// liveportrait_d6: `jawOpen` 0.00 where MediaPipe's is 0.15-0.20; docs/expressions.md,
+    /// "The neutral mouth"). `None` fits the mouth on the resting frames like the rest.
+    pub mouth_closed: Option<(f64, f64)>,
 }
 
 impl Default for SubjectParams {
@@ -88,6 +98,7 @@ impl Default for SubjectParams {
             identity_ridge: 1.0,
             residual_offsets: true,
             eye_open: Some((0.5, 0.95)),
+            mouth_closed: Some((0.0, 0.3)),
         }
     }
 }
@@ -101,15 +112,17 @@ impl SubjectParams {
         check_range("alpha_xy", self.alpha_xy, 0.0, 1e9)?;
         check_range("alpha_z", self.alpha_z, 0.0, 1e9)?;
         check_range("identity_ridge", self.identity_ridge, 0.0, 1e9)?;
-        if let Some((lo, hi)) = self.eye_open {
-            check_range("eye_open.0", lo, 0.0, 1.0)?;
-            check_range("eye_open.1", hi, 0.0, 1.0)?;
-            if lo >= hi {
-                return Err(Error::InvalidParameter {
-                    name: "eye_open",
-                    value: format!("({lo}, {hi})"),
-                    expected: "lower quantile below the upper".into(),
-                });
+        for (name, q) in [("eye_open", self.eye_open), ("mouth_closed", self.mouth_closed)] {
+            if let Some((lo, hi)) = q {
+                check_range(name, lo, 0.0, 1.0)?;
+                check_range(name, hi, 0.0, 1.0)?;
+                if lo >= hi {
+                    return Err(Error::InvalidParameter {
+                        name,
+                        value: format!("({lo}, {hi})"),
+                        expected: "lower quantile below the upper".into(),
+                    });
+                }
             }
         }
         Ok(())
@@ -191,6 +204,24 @@ type SolvedSample = (
 );
 
 /// Solves `frames` in order with `solver` (warm-started), returning poses and weights.
+/// The mouth's points (iBUG), fitted on the closed-mouth frames.
+const MOUTH: std::ops::Range<usize> = 48..68;
+/// The chin's contour points, which the jaw carries with the mouth.
+const CHIN: std::ops::RangeInclusive<usize> = 4..=12;
+
+/// Inner-lip gap (iBUG 61-67, 62-66, 63-65) over the distance of the outer eye corners
+/// (36-45). Not over the mouth's width, which a smile stretches: smiling frames would read
+/// as more closed than resting ones.
+fn mouth_opening(l: &Landmarks68) -> f64 {
+    let p = &l.points;
+    let gap = [(61, 67), (62, 66), (63, 65)]
+        .iter()
+        .map(|&(a, b)| (p[a] - p[b]).norm())
+        .sum::<f64>()
+        / 3.0;
+    gap / (p[36] - p[45]).norm()
+}
+
 fn solve_all(solver: &Exact3dSolver, frames: &[&Landmarks68]) -> Vec<Option<SolvedSample>> {
     let n = solver.num_shapes();
     let mut ws = solver.workspace();
@@ -287,6 +318,18 @@ pub fn fit_subject_with_identity(
             open.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
         })
     });
+    let mouth_frames: Option<Vec<bool>> = params.mouth_closed.map(|(lo, hi)| {
+        let open: Vec<f64> = sample.iter().map(|l| mouth_opening(l)).collect();
+        let mut sorted: Vec<f64> = open.iter().copied().filter(|v| v.is_finite()).collect();
+        sorted.sort_by(f64::total_cmp);
+        if sorted.is_empty() {
+            return vec![false; open.len()];
+        }
+        let q = |t: f64| sorted[((sorted.len() - 1) as f64 * t).round() as usize];
+        let (a, b) = (q(lo), q(hi));
+        open.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
+    });
+    let in_mouth = |l: usize| MOUTH.contains(&l) || CHIN.contains(&l);
     // the lid points (the corners stay with the resting frames: they do not open)
     let eye_of = |l: usize| match l {
         37 | 38 | 40 | 41 => Some(0),
@@ -329,7 +372,10 @@ pub fn fit_subject_with_identity(
             // the landmarks this frame informs
             let takes = |l: usize| match eye_of(l).and_then(|e| eye_frames[e].as_ref()) {
                 Some(open) => open[fi],
-                None => rest,
+                None => match &mouth_frames {
+                    Some(closed) if in_mouth(l) => closed[fi],
+                    _ => rest,
+                },
             };
             if !(0..NUM_LANDMARKS).any(takes) {
                 continue;
@@ -553,7 +599,15 @@ mod tests {
             (se / (6 * frames.len()) as f64).sqrt()
         };
         let generic = rmse(&rig);
-        let fit = fit_subject(&rig, camera, objective, &priors, &frames, &SubjectParams::default()).unwrap();
+        // The synthetic rig's random mouth and jaw shapes narrow the lip gap of its (open)
+        // neutral mouth, which the closed-mouth selection would take for closed lips; real
+        // lips at rest are together and no expression closes them further. The closed-mouth
+        // selection has its own test (`talking_frames_do_not_open_the_neutral_mouth`).
+        let params = SubjectParams {
+            mouth_closed: None,
+            ..SubjectParams::default()
+        };
+        let fit = fit_subject(&rig, camera, objective, &priors, &frames, &params).unwrap();
         let calibrated = rmse(&fit.rig);
         assert!(fit.frames_used == 60 && fit.rest_frames >= 20, "{fit:?}");
         assert!(calibrated < 0.05, "calibrated RMSE {calibrated}, generic {generic}");
@@ -615,6 +669,59 @@ mod tests {
             "lid offset {open} (lid gap {lid_gap}, all frames {all})"
         );
         assert!(open < 0.25 * all, "lid offset {open}, all frames {all}");
+    }
+
+    /// Speech: the lips are apart on most frames (all of them resting by expression
+    /// energy). The neutral mouth is fitted on the closed-mouth frames, so it stays closed;
+    /// fitted on every resting frame it opens.
+    #[test]
+    fn talking_frames_do_not_open_the_neutral_mouth() {
+        let rig = BlendshapeRig::synthetic(6, 11);
+        let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
+        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+        let lip_gap = (0..3)
+            .map(|c| (rig.neutral[[62, c]] - rig.neutral[[66, c]]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let frames: Vec<Landmarks68> = (0..60)
+            .map(|f| {
+                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.2 * (f as f64 * 0.2).sin(), 0.0));
+                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(0.0, 0.0, 50.0));
+                // 7 of 10 frames talk: lower lip and chin down by up to 0.6 of a lip gap
+                let open = if f % 10 < 7 {
+                    0.3 + 0.3 * (f as f64 * 0.9).sin().abs()
+                } else {
+                    0.0
+                };
+                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
+                    .map(|l| {
+                        let mut x = rig.landmark(l, &[0.0; 6]);
+                        if [56, 57, 58, 65, 66, 67, 7, 8, 9].contains(&l) {
+                            // model +Y is up
+                            x.y -= open * lip_gap;
+                        }
+                        let p = pose.project(&camera, &x).unwrap();
+                        (p.x, p.y)
+                    })
+                    .collect();
+                Landmarks68::from_slice(&pts).unwrap()
+            })
+            .collect();
+        let fit = |mouth_closed| {
+            let params = SubjectParams {
+                mouth_closed,
+                ..SubjectParams::default()
+            };
+            let priors = ShapePriors::neutral(6);
+            fit_subject(&rig, camera, ObjectiveParams::default(), &priors, &frames, &params).unwrap()
+        };
+        let lip_shift = |f: &SubjectFit| [65, 66, 67].iter().map(|&l| f.offsets[l].norm()).sum::<f64>() / 3.0;
+        let (closed, all) = (lip_shift(&fit(Some((0.0, 0.3)))), lip_shift(&fit(None)));
+        assert!(
+            closed < 0.05 * lip_gap,
+            "lower lip offset {closed} (lip gap {lip_gap}, all frames {all})"
+        );
+        assert!(closed < 0.25 * all, "lower lip offset {closed}, all frames {all}");
     }
 
     /// A subject built from identity modes: the joint multi-frame fit recovers the
