@@ -10,7 +10,10 @@
 //! camera ([`facecap_core::camera::head_rotation`]): `HeadYaw` = rotation about the
 //! vertical axis (`pose.csv`'s `pose_Ry`), `HeadPitch` = about the horizontal axis
 //! (`pose_Rx`), `HeadRoll` = about the viewing axis (`pose_Rz`); 0 on frames without a
-//! pose. The eye columns are 0 (no gaze estimate yet). Only solved frames get a row:
+//! pose. **Eye rotations** in radians, relative to the head, with the head's signs (yaw > 0:
+//! towards the subject's right; pitch > 0: down), from the row's `eyes` (the pipeline turns
+//! the `eyeLook*` weights of the gaze estimate into rotations,
+//! `facecap_landmarks::gaze::eye_rotations`); the eyes' roll is 0. Only solved frames get a row:
 //! a frame without a face has no timecode in the file rather than a row of zeros that
 //! would read as a neutral face.
 //!
@@ -177,6 +180,9 @@ pub struct LiveLinkRow<'a> {
     pub weights: &'a [f64],
     /// Head pose.
     pub pose: Option<&'a ModelToCamera>,
+    /// `LeftEyeYaw, LeftEyePitch, LeftEyeRoll, RightEyeYaw, RightEyePitch, RightEyeRoll`
+    /// (radians, module docs); non-finite values are written as 0.
+    pub eyes: [f64; 6],
 }
 
 /// Writes `path` when every rig name maps onto ARKit; returns the file name written,
@@ -206,7 +212,8 @@ pub fn write_if_arkit<'a>(
         let head = head_angles(row.pose);
         text.push_str(&timecode(row.index, fps));
         text.push_str(&format!(",{count}"));
-        for v in values.iter().chain(head.iter()).chain([0.0; 6].iter()) {
+        let eyes = row.eyes.map(|v| if v.is_finite() { v } else { 0.0 });
+        for v in values.iter().chain(head.iter()).chain(eyes.iter()) {
             text.push_str(&format!(",{v}"));
         }
         text.push('\n');

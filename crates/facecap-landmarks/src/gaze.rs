@@ -844,6 +844,59 @@ pub fn gaze_weights(frame: &IrisFrame, rest: &GazeRest, gains: &GazeGains) -> [f
     [l[0], l[1], l[2], l[3], r[0], r[1], r[2], r[3]]
 }
 
+/// Radius of the eyeball in eye widths (corner-to-corner distances): about 12 mm over an
+/// eye about 30 mm wide. The iris centre of an eye turned by `theta` sits `R sin(theta)` from
+/// where it rests, so an offset of `d` eye widths is a rotation of `asin(d / R)`.
+pub const EYEBALL_RADIUS_EYE_WIDTHS: f64 = 0.4;
+
+/// Largest eye rotation [`eye_rotations`] reports (50 degrees, about the human range of
+/// eye movement away from straight ahead).
+pub const MAX_EYE_ROTATION: f64 = 50.0 * std::f64::consts::PI / 180.0;
+
+/// Eye rotations (radians) of the eight gaze weights in [`GAZE_WEIGHT_NAMES`] order, made
+/// by [`gaze_weights`] with `gains`: `[[yaw, pitch]; 2]` for the Left then the Right eye.
+///
+/// Each weight is turned back into its iris offset (`weight / gain`, in eye widths) and that
+/// into a rotation of an eyeball of radius [`EYEBALL_RADIUS_EYE_WIDTHS`], capped at
+/// [`MAX_EYE_ROTATION`]. Signs follow the head rotation of `pose.csv` / `livelink.csv`:
+/// **yaw > 0 turns the eye towards the subject's right** (image left: `eyeLookOutRight`,
+/// `eyeLookInLeft`), **pitch > 0 turns it down** (`eyeLookDown`). Non-finite or negative
+/// weights count as 0.
+///
+/// ```
+/// use facecap_landmarks::gaze::{eye_rotations, GazeGains};
+/// // both eyes look towards the subject's right and a little down
+/// let g = GazeGains::default();
+/// let w = [0.3, 0.0, 0.0, 0.2, 0.0, 0.2, 0.0, 0.2]; // In/Out/Up/Down Left, then Right
+/// let [[ly, lp], [ry, rp]] = eye_rotations(&w, &g);
+/// assert!(ly > 0.0 && ry > 0.0 && lp > 0.0 && (lp - rp).abs() < 1e-12);
+/// assert_eq!(eye_rotations(&[0.0; 8], &g), [[0.0; 2]; 2]);
+/// ```
+pub fn eye_rotations(weights: &[f64; 8], gains: &GazeGains) -> [[f64; 2]; 2] {
+    let angle = |w: f64, gain: f64| {
+        if !(w.is_finite() && w > 0.0 && gain.is_finite() && gain > 0.0) {
+            return 0.0;
+        }
+        (w / gain / EYEBALL_RADIUS_EYE_WIDTHS)
+            .min(1.0)
+            .asin()
+            .min(MAX_EYE_ROTATION)
+    };
+    let eye = |w: &[f64]| {
+        let (look_in, out, up, down) = (
+            angle(w[0], gains.look_in),
+            angle(w[1], gains.look_out),
+            angle(w[2], gains.look_up),
+            angle(w[3], gains.look_down),
+        );
+        (look_in - out, down - up)
+    };
+    // Left eye: In is towards the nose, i.e. the subject's right; Right eye: Out is.
+    let (l_in_out, l_pitch) = eye(&weights[0..4]);
+    let (r_in_out, r_pitch) = eye(&weights[4..8]);
+    [[l_in_out, l_pitch], [-r_in_out, r_pitch]]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,7 +6,8 @@
 //! The same numbers as the recorded files: the weights of `weights.csv` and, where the
 //! rig's shape names map onto ARKit's ([`facecap_io::livelink::mapping`]), the ARKit curves
 //! of `livelink.csv` (split `_L`/`_R` halves of an unsided shape averaged), head yaw,
-//! pitch and roll as in `livelink.csv` ([`facecap_io::livelink::head_angles`]). Frames
+//! pitch and roll as in `livelink.csv` ([`facecap_io::livelink::head_angles`]), and the eye
+//! rotations of `livelink.csv` from the `eyeLook*` curves ([`eye_columns`]). Frames
 //! without a face send no OSC or Live Link packet (receivers hold the last pose); the
 //! JSON line says `"success": false`.
 //!
@@ -266,10 +267,26 @@ pub fn vmc_packet(curves: &CurveMap, frame: &SolvedFrame) -> Result<Vec<u8>> {
     })
 }
 
+/// The Live Link eye columns (`LeftEyeYaw` .. `RightEyeRoll`, radians) of a frame's 52 ARKit
+/// values (`LIVE_LINK_SHAPES` order): its `eyeLook*` weights turned into eye rotations
+/// ([`facecap_landmarks::gaze::eye_rotations`] with the gains the pipeline's gaze uses); roll 0.
+pub fn eye_columns(arkit: &[f64; 52]) -> [f64; 6] {
+    use facecap_landmarks::gaze::{eye_rotations, GazeGains, GAZE_WEIGHT_NAMES};
+    let mut look = [0.0; 8];
+    for (slot, name) in look.iter_mut().zip(GAZE_WEIGHT_NAMES) {
+        if let Some(c) = LIVE_LINK_SHAPES.iter().position(|s| s.eq_ignore_ascii_case(name)) {
+            *slot = arkit[c];
+        }
+    }
+    let [[ly, lp], [ry, rp]] = eye_rotations(&look, &GazeGains::default());
+    [ly, lp, 0.0, ry, rp, 0.0]
+}
+
 /// The 61 packet curves of a frame (module docs): ARKit values then head and eyes.
 pub fn packet_curves(curves: &CurveMap, frame: &SolvedFrame) -> [f32; 61] {
     let csv = curves.arkit_values(&frame.weights);
     let head = head_angles(frame.pose.as_ref());
+    let eyes = eye_columns(&csv);
     let mut out = [0.0f32; 61];
     for (slot, name) in out.iter_mut().zip(PACKET_CURVES) {
         *slot = if let Some(c) = LIVE_LINK_SHAPES.iter().position(|s| *s == name) {
@@ -277,7 +294,8 @@ pub fn packet_curves(curves: &CurveMap, frame: &SolvedFrame) -> [f32; 61] {
         } else {
             match LIVE_LINK_POSE.iter().position(|s| *s == name) {
                 Some(k) if k < 3 => head[k] as f32,
-                _ => 0.0,
+                Some(k) => eyes[k - 3] as f32,
+                None => 0.0,
             }
         };
     }
@@ -595,6 +613,33 @@ pub fn quantile(values: &[f64], p: f64) -> f64 {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// A look towards the subject's right (image left) turns both eyes to positive yaw, a
+    /// look down to positive pitch, as the head's yaw and pitch; no gaze, no rotation.
+    #[test]
+    fn eye_columns_follow_the_head_signs() {
+        let at = |pairs: &[(&str, f64)]| {
+            let mut v = [0.0; 52];
+            for (n, w) in pairs {
+                v[LIVE_LINK_SHAPES.iter().position(|s| s == n).unwrap()] = *w;
+            }
+            eye_columns(&v)
+        };
+        let right = at(&[("EyeLookOutRight", 0.4), ("EyeLookInLeft", 0.4)]);
+        assert!(right[0] > 0.1 && right[3] > 0.1, "{right:?}");
+        let left = at(&[("EyeLookInRight", 0.4), ("EyeLookOutLeft", 0.4)]);
+        assert!(left[0] < -0.1 && left[3] < -0.1, "{left:?}");
+        let down = at(&[("EyeLookDownRight", 0.3), ("EyeLookDownLeft", 0.3)]);
+        assert!(down[1] > 0.1 && down[4] > 0.1 && down[0] == 0.0, "{down:?}");
+        let up = at(&[("EyeLookUpRight", 0.3), ("EyeLookUpLeft", 0.3)]);
+        assert!(up[1] < -0.1 && up[4] < -0.1, "{up:?}");
+        assert_eq!(at(&[]), [0.0; 6]);
+        // saturated weights stay within the human range of eye movement
+        let far = at(&[("EyeLookInLeft", 1.0), ("EyeLookDownRight", 1.0)]);
+        assert!(far.iter().all(|a| a.abs() <= 50f64.to_radians() + 1e-12), "{far:?}");
+        // roll is never estimated
+        assert_eq!((far[2], far[5]), (0.0, 0.0));
+    }
 
     fn frame(weights: Vec<f64>) -> SolvedFrame {
         SolvedFrame {
