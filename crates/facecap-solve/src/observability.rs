@@ -277,9 +277,14 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
 
 /// The default priors of `rig` for 68-landmark input (module docs): unseen shapes fixed,
 /// ridge `BASE_RIDGE / max(independence, 0.1)^2` on the others, ARKit antagonists
-/// exclusive, the temporal weight cut to [`BLINK_TEMPORAL`] on blinks, every landmark
-/// weighted 1 (ARKit's coupled shapes are opt-in: [`with_arkit_coupling`]).
+/// exclusive, ARKit's coupled shapes coupled ([`with_arkit_coupling`]), the temporal weight
+/// cut to [`BLINK_TEMPORAL`] on blinks, every landmark weighted 1.
 pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
+    with_arkit_coupling(rig, uncoupled_priors(rig))
+}
+
+/// [`default_priors`] without ARKit's coupled shapes.
+pub fn uncoupled_priors(rig: &BlendshapeRig) -> ShapePriors {
     let table = analyse(rig);
     let n = rig.num_shapes();
     let mut p = ShapePriors::neutral(n);
@@ -296,11 +301,12 @@ pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
 
 /// `priors` with ARKit's coupled shapes of `rig` ([`COUPLED`], [`ShapePriors::coupled`]):
 /// each coupled child's ridge re-measured on what the landmarks see of its variable (the
-/// child with its parent's motion); the parent keeps its own. Not part of
-/// [`default_priors`]: on the shared clips it makes `mouthClose` follow MediaPipe's
-/// (r 0.36 -> 0.98 with the face mesh front end) but lowers `jawOpen` (0.82 -> 0.75 with
-/// dlib's 68 points) and pins the built-in rig's `mouthShrugLower` on resting pressed lips
-/// (docs/expressions.md, "Coupling mouthClose to jawOpen").
+/// child with its parent's motion); the parent keeps its own. Part of [`default_priors`]
+/// since the subject's neutral mouth is fitted with the lips together: on the shared clips
+/// mean r 0.627 -> 0.631 (built-in rig), 0.588 -> 0.591 (ICT) with dlib's 68 points, 0.707
+/// -> 0.714 and 0.681 -> 0.685 with the face mesh, `mouthClose` 0.89 -> 0.94 / 0.98 -> 0.99
+/// (mesh); before that change it lowered `jawOpen` and pinned `mouthShrugLower` on resting
+/// pressed lips (docs/expressions.md, "Coupling mouthClose to jawOpen").
 pub fn with_arkit_coupling(rig: &BlendshapeRig, mut priors: ShapePriors) -> ShapePriors {
     let coupled = coupled_pairs(rig);
     if !coupled.is_empty() {
@@ -375,10 +381,11 @@ mod tests {
             .index_axis(ndarray::Axis(0), 2)
             .iter()
             .all(|v| v.abs() < 1e-12));
-        let plain = default_priors(&rig);
+        let plain = uncoupled_priors(&rig);
         assert!(plain.coupled.is_empty());
         let p = with_arkit_coupling(&rig, plain.clone());
         assert_eq!(p.coupled, vec![(2, 0)]);
+        assert_eq!(default_priors(&rig), p);
         // a variable the landmarks cannot see: held at 0, independence floored at 0.1
         assert!(!plain.fixed[2] && p.fixed[2]);
         assert!((p.ridge[2] - BASE_RIDGE / 0.01).abs() < 1e-9, "{}", p.ridge[2]);
