@@ -35,6 +35,55 @@ impl LandmarkMap {
         Ok(LandmarkMap { vertices })
     }
 
+    /// The map of 68 landmark positions given as points in the mesh's frame (a scan
+    /// annotated with 3D points, not vertex ids): each landmark takes the vertex of
+    /// `positions` nearest to it; a non-finite point stays unmapped.
+    ///
+    /// ```
+    /// use facecap_core::landmark_map::LandmarkMap;
+    /// use nalgebra::Point3;
+    /// let mesh = [Point3::new(0.0f32, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0)];
+    /// let mut points = vec![Point3::new(0.9, 0.1, 0.0); 68];
+    /// points[3] = Point3::new(f64::NAN, 0.0, 0.0);
+    /// let map = LandmarkMap::nearest_vertices(&mesh, &points).unwrap();
+    /// assert_eq!((map.vertices[0], map.vertices[3]), (Some(1), None));
+    /// ```
+    ///
+    /// # Errors
+    /// Not 68 points, or a mesh without vertices (or with more than `u32::MAX`).
+    pub fn nearest_vertices(positions: &[nalgebra::Point3<f32>], points: &[nalgebra::Point3<f64>]) -> Result<Self> {
+        if points.len() != NUM_LANDMARKS {
+            return Err(Error::DimensionMismatch {
+                what: "landmark points".into(),
+                expected: NUM_LANDMARKS,
+                got: points.len(),
+            });
+        }
+        if positions.is_empty() || u32::try_from(positions.len()).is_err() {
+            return Err(Error::DimensionMismatch {
+                what: "mesh vertices (1 to u32::MAX)".into(),
+                expected: 1,
+                got: positions.len(),
+            });
+        }
+        let mut vertices = [None; NUM_LANDMARKS];
+        for (slot, q) in vertices.iter_mut().zip(points) {
+            if !(q.x.is_finite() && q.y.is_finite() && q.z.is_finite()) {
+                continue;
+            }
+            let d2 = |p: &nalgebra::Point3<f32>| {
+                (f64::from(p.x) - q.x).powi(2) + (f64::from(p.y) - q.y).powi(2) + (f64::from(p.z) - q.z).powi(2)
+            };
+            *slot = positions
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| d2(p).is_finite())
+                .min_by(|a, b| d2(a.1).total_cmp(&d2(b.1)))
+                .map(|(i, _)| i as u32);
+        }
+        Ok(LandmarkMap { vertices })
+    }
+
     /// Reads one of the JSON forms in the module docs.
     pub fn from_json_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;

@@ -391,6 +391,31 @@ fn shared_james_ljson_reads_3d_points_exactly() {
     );
     assert!(!g.connectivity.is_empty());
     assert!(g.landmarks68().is_err()); // 3D: not image landmarks
+                                       // iBUG order from the labels: eyes after the nose, brows after the jaw
+    let order = g.ibug68_order().unwrap();
+    assert_eq!(&order[..17], &(0..17).collect::<Vec<_>>()[..]);
+    assert_eq!(
+        (order[17], order[22], order[27], order[36], order[42], order[48]),
+        (29, 43, 34, 17, 23, 48)
+    );
+    let ibug = g.mesh_landmarks68().unwrap();
+    assert_eq!(ibug[36], pts[17]);
+    // brows above the eyes, the subject's right eye (36-41) on the side of jaw point 0
+    assert!(ibug[19].y > ibug[37].y && ibug[24].y > ibug[44].y);
+    assert!((ibug[36].x - ibug[0].x).abs() < (ibug[45].x - ibug[0].x).abs());
+    // labels in another order give the same; a missing or short label is an error
+    let mut shuffled = g.clone();
+    shuffled.labels.reverse();
+    assert_eq!(shuffled.ibug68_order().unwrap(), order);
+    let mut missing = g.clone();
+    missing.labels.retain(|(l, _)| l != "nose");
+    assert!(missing.ibug68_order().is_err());
+    let mut short = g.clone();
+    short.labels[0].1.pop();
+    assert!(short.ibug68_order().is_err());
+    let mut outside = g.clone();
+    outside.labels[6].1[0] = 68;
+    assert!(outside.mesh_landmarks68().is_err());
 }
 
 #[test]

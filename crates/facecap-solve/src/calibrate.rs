@@ -204,6 +204,19 @@ type SolvedSample = (
 );
 
 /// Solves `frames` in order with `solver` (warm-started), returning poses and weights.
+/// Per value: whether it lies between the `lo` and `hi` quantiles of the finite values
+/// (never, for a non-finite value or when none is finite).
+fn within_quantiles(values: &[f64], (lo, hi): (f64, f64)) -> Vec<bool> {
+    let mut sorted: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    sorted.sort_by(f64::total_cmp);
+    if sorted.is_empty() {
+        return vec![false; values.len()];
+    }
+    let q = |t: f64| sorted[((sorted.len() - 1) as f64 * t).round() as usize];
+    let (a, b) = (q(lo), q(hi));
+    values.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
+}
+
 /// The mouth's points (iBUG), fitted on the closed-mouth frames.
 const MOUTH: std::ops::Range<usize> = 48..68;
 /// The chin's contour points, which the jaw carries with the mouth.
@@ -303,31 +316,17 @@ pub fn fit_subject_with_identity(
     };
     // per eye, which sampled frames the eye's six points are fitted on
     let eye_frames: [Option<Vec<bool>>; 2] = std::array::from_fn(|e| {
-        params.eye_open.map(|(lo, hi)| {
+        params.eye_open.map(|range| {
             let open: Vec<f64> = sample
                 .iter()
                 .map(|l| eye_aspect_ratio(&EYES[e].map(|i| l.points[i])))
                 .collect();
-            let mut sorted: Vec<f64> = open.iter().copied().filter(|v| v.is_finite()).collect();
-            sorted.sort_by(f64::total_cmp);
-            if sorted.is_empty() {
-                return vec![false; open.len()];
-            }
-            let q = |t: f64| sorted[((sorted.len() - 1) as f64 * t).round() as usize];
-            let (a, b) = (q(lo), q(hi));
-            open.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
+            within_quantiles(&open, range)
         })
     });
-    let mouth_frames: Option<Vec<bool>> = params.mouth_closed.map(|(lo, hi)| {
+    let mouth_frames: Option<Vec<bool>> = params.mouth_closed.map(|range| {
         let open: Vec<f64> = sample.iter().map(|l| mouth_opening(l)).collect();
-        let mut sorted: Vec<f64> = open.iter().copied().filter(|v| v.is_finite()).collect();
-        sorted.sort_by(f64::total_cmp);
-        if sorted.is_empty() {
-            return vec![false; open.len()];
-        }
-        let q = |t: f64| sorted[((sorted.len() - 1) as f64 * t).round() as usize];
-        let (a, b) = (q(lo), q(hi));
-        open.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
+        within_quantiles(&open, range)
     });
     let in_mouth = |l: usize| MOUTH.contains(&l) || CHIN.contains(&l);
     // the lid points (the corners stay with the resting frames: they do not open)

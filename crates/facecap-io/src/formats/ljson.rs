@@ -89,6 +89,72 @@ impl LjsonGroup {
     }
 }
 
+/// iBUG ranges of menpo's 68-point labels (`face_ibug_68` and the older 3D names).
+const IBUG68_LABELS: [(&[&str], std::ops::Range<usize>); 7] = [
+    (&["jaw", "chin"], 0..17),
+    (&["left_eyebrow", "leyebrow"], 17..22),
+    (&["right_eyebrow", "reyebrow"], 22..27),
+    (&["nose"], 27..36),
+    (&["left_eye", "leye"], 36..42),
+    (&["right_eye", "reye"], 42..48),
+    (&["mouth"], 48..68),
+];
+
+impl LjsonGroup {
+    /// The file index of each iBUG landmark, from the group's labels (menpo's
+    /// `face_ibug_68` names `jaw`, `left_eyebrow`, ... or the older `chin`, `leyebrow`,
+    /// `leye`, ...; menpo's left is the image's left, iBUG 17-21 and 36-41), whatever order
+    /// the labels come in.
+    ///
+    /// # Errors
+    /// [`Error::Parse`] when a label is missing, its mask has the wrong length or points
+    /// outside the group.
+    pub fn ibug68_order(&self) -> Result<[usize; NUM_LANDMARKS]> {
+        let mut order = [0usize; NUM_LANDMARKS];
+        for (names, range) in IBUG68_LABELS {
+            let Some((label, mask)) = self.labels.iter().find(|(l, _)| names.contains(&l.as_str())) else {
+                return Err(Error::parse(
+                    FORMAT,
+                    "",
+                    format!("group {:?} has no label {:?} (68-point labels)", self.name, names[0]),
+                ));
+            };
+            if mask.len() != range.len() || mask.iter().any(|&i| i >= self.points.len()) {
+                return Err(Error::parse(
+                    FORMAT,
+                    "",
+                    format!(
+                        "label {label:?} of group {:?}: {} points (want {}), or an index past its {} points",
+                        self.name,
+                        mask.len(),
+                        range.len(),
+                        self.points.len()
+                    ),
+                ));
+            }
+            for (slot, &i) in order[range].iter_mut().zip(mask) {
+                *slot = i;
+            }
+        }
+        Ok(order)
+    }
+
+    /// The group as 68 mesh (3D) landmarks in iBUG order ([`Self::ibug68_order`]).
+    ///
+    /// # Errors
+    /// [`Error::Parse`] for 2D points or labels that do not give the 68 points.
+    pub fn mesh_landmarks68(&self) -> Result<Vec<Point3<f64>>> {
+        let LjsonPoints::D3(p) = &self.points else {
+            return Err(Error::parse(
+                FORMAT,
+                "",
+                format!("group {:?} holds 2D (image) landmarks", self.name),
+            ));
+        };
+        Ok(self.ibug68_order()?.iter().map(|&i| p[i]).collect())
+    }
+}
+
 /// A parsed `.ljson` file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Ljson {
