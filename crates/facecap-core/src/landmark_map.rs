@@ -71,14 +71,14 @@ impl LandmarkMap {
             if !(q.x.is_finite() && q.y.is_finite() && q.z.is_finite()) {
                 continue;
             }
-            let d2 = |p: &nalgebra::Point3<f32>| {
-                (f64::from(p.x) - q.x).powi(2) + (f64::from(p.y) - q.y).powi(2) + (f64::from(p.z) - q.z).powi(2)
-            };
             *slot = positions
                 .iter()
+                .map(|p| {
+                    (f64::from(p.x) - q.x).powi(2) + (f64::from(p.y) - q.y).powi(2) + (f64::from(p.z) - q.z).powi(2)
+                })
                 .enumerate()
-                .filter(|(_, p)| d2(p).is_finite())
-                .min_by(|a, b| d2(a.1).total_cmp(&d2(b.1)))
+                .filter(|(_, d2)| d2.is_finite())
+                .min_by(|a, b| a.1.total_cmp(&b.1))
                 .map(|(i, _)| i as u32);
         }
         Ok(LandmarkMap { vertices })

@@ -11,7 +11,7 @@
 //! vertical axis (`pose.csv`'s `pose_Ry`), `HeadPitch` = about the horizontal axis
 //! (`pose_Rx`), `HeadRoll` = about the viewing axis (`pose_Rz`); 0 on frames without a
 //! pose. **Eye rotations** in radians, relative to the head, with the head's signs (yaw > 0:
-//! towards the subject's right; pitch > 0: down), from the row's `eyes` (the pipeline turns
+//! towards the subject's right; pitch > 0: down), from the writer's `eyes` (the pipeline turns
 //! the `eyeLook*` weights of the gaze estimate into rotations,
 //! `facecap_landmarks::gaze::eye_rotations`); the eyes' roll is 0. Only solved frames get a row:
 //! a frame without a face has no timecode in the file rather than a row of zeros that
@@ -180,13 +180,22 @@ pub struct LiveLinkRow<'a> {
     pub weights: &'a [f64],
     /// Head pose.
     pub pose: Option<&'a ModelToCamera>,
-    /// `LeftEyeYaw, LeftEyePitch, LeftEyeRoll, RightEyeYaw, RightEyePitch, RightEyeRoll`
-    /// (radians, module docs); non-finite values are written as 0.
-    pub eyes: [f64; 6],
+}
+
+/// The 52 ARKit values ([`LIVE_LINK_SHAPES`] order) of rig `weights` through a [`mapping`]
+/// (a split half adds its share; a missing weight counts as 0).
+pub fn arkit_values(map: &[(usize, f64)], weights: &[f64]) -> [f64; 52] {
+    let mut values = [0.0f64; 52];
+    for (k, &(col, share)) in map.iter().enumerate() {
+        values[col] += share * weights.get(k).copied().unwrap_or(0.0);
+    }
+    values
 }
 
 /// Writes `path` when every rig name maps onto ARKit; returns the file name written,
-/// or `None` (nothing written) when the names do not map.
+/// or `None` (nothing written) when the names do not map. `eyes` gives a row's
+/// `LeftEyeYaw, LeftEyePitch, LeftEyeRoll, RightEyeYaw, RightEyePitch, RightEyeRoll`
+/// (radians, module docs) from its 52 ARKit values; non-finite ones are written as 0.
 ///
 /// # Errors
 /// When the file cannot be written.
@@ -195,6 +204,7 @@ pub fn write_if_arkit<'a>(
     names: &[String],
     fps: f64,
     rows: impl IntoIterator<Item = LiveLinkRow<'a>>,
+    eyes: impl Fn(&[f64; 52]) -> [f64; 6],
 ) -> Result<Option<String>> {
     let Some(map) = mapping(names) else { return Ok(None) };
     let mut text = String::from("Timecode,BlendShapeCount");
@@ -205,14 +215,11 @@ pub fn write_if_arkit<'a>(
     text.push('\n');
     let count = LIVE_LINK_SHAPES.len() + LIVE_LINK_POSE.len();
     for row in rows {
-        let mut values = [0.0f64; 52];
-        for (k, &(col, share)) in map.iter().enumerate() {
-            values[col] += share * row.weights.get(k).copied().unwrap_or(0.0);
-        }
+        let values = arkit_values(&map, row.weights);
         let head = head_angles(row.pose);
         text.push_str(&timecode(row.index, fps));
         text.push_str(&format!(",{count}"));
-        let eyes = row.eyes.map(|v| if v.is_finite() { v } else { 0.0 });
+        let eyes = eyes(&values).map(|v| if v.is_finite() { v } else { 0.0 });
         for v in values.iter().chain(head.iter()).chain(eyes.iter()) {
             text.push_str(&format!(",{v}"));
         }

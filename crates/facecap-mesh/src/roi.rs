@@ -226,27 +226,23 @@ pub fn warp_to_tensor(
     let row = (w * 3) as usize;
     // `origin + u du` per column, computed once: the per-pixel source position is
     // `(origin + u du) + v dv` in this order, so the sums (and the rounding) are unchanged.
+    let column = |u: usize| {
+        [
+            map.origin[0] + u as f64 * map.du[0],
+            map.origin[1] + u as f64 * map.du[1],
+        ]
+    };
     let mut cols = [[0.0f64; 2]; MAX_PRECOMPUTED_COLUMNS];
     let precomputed = n <= MAX_PRECOMPUTED_COLUMNS;
     if precomputed {
         for (u, c) in cols.iter_mut().take(n).enumerate() {
-            *c = [
-                map.origin[0] + u as f64 * map.du[0],
-                map.origin[1] + u as f64 * map.du[1],
-            ];
+            *c = column(u);
         }
     }
     for (v, out_row) in out.chunks_exact_mut(3 * n).take(n).enumerate() {
         let (bx, by) = (v as f64 * map.dv[0], v as f64 * map.dv[1]);
         for (u, o) in out_row.chunks_exact_mut(3).enumerate() {
-            let [ax, ay] = if precomputed {
-                cols[u]
-            } else {
-                [
-                    map.origin[0] + u as f64 * map.du[0],
-                    map.origin[1] + u as f64 * map.du[1],
-                ]
-            };
+            let [ax, ay] = if precomputed { cols[u] } else { column(u) };
             let (sx, sy) = (ax + bx, ay + by);
             // OpenCV: X = saturate_cast<int>(x * INTER_TAB_SIZE), i.e. cvRound.
             let xi = rint((sx * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT)) as i64;

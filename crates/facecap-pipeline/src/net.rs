@@ -186,13 +186,9 @@ impl CurveMap {
 
     /// The 52 ARKit values in `LIVE_LINK_SHAPES` (CSV) order, as in `livelink.csv`.
     pub fn arkit_values(&self, weights: &[f64]) -> [f64; 52] {
-        let mut v = [0.0f64; 52];
-        if let Some(m) = &self.arkit {
-            for (k, &(col, share)) in m.iter().enumerate() {
-                v[col] += share * weights.get(k).copied().unwrap_or(0.0);
-            }
-        }
-        v
+        self.arkit
+            .as_ref()
+            .map_or([0.0; 52], |m| facecap_io::livelink::arkit_values(m, weights))
     }
 
     /// (name, value) pairs sent over VMC.

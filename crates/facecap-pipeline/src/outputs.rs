@@ -128,7 +128,6 @@ pub fn write_solve_outputs(
     let frames = &result.frames;
     let mut written = Written::default();
     let poses = held_poses(frames);
-    let curves = crate::net::CurveMap::new(&result.names);
     written.livelink = livelink::write_if_arkit(
         &out_dir.join("livelink.csv"),
         &result.names,
@@ -139,8 +138,8 @@ pub fn write_solve_outputs(
             index: f.index,
             weights: &f.weights,
             pose: f.pose.as_ref(),
-            eyes: crate::net::eye_columns(&curves.arkit_values(&f.weights)),
         }),
+        crate::net::eye_columns,
     )?;
     crate::openface::write_openface_csv(&out_dir.join("openface.csv"), rig, frames, o.rig_unit_mm)?;
     if frames.iter().any(|f| f.success) {
