@@ -307,6 +307,18 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
                 set(&[low], Vector3::new(0.0, -0.35 * dy, 0.05));
                 set(&[up], Vector3::new(0.0, 0.1 * dy, 0.0));
             }
+            // FACS AU6 (the orbital part of orbicularis oculi, what ARKit's eyeSquint
+            // follows in a smile) also draws the brow's outer half down a little. Without
+            // it, smiles read as browDown (0.3-0.45 on three shared clips, docs/expressions.md
+            // "eyeSquint and the brow").
+            let brow = if name.ends_with("Left") {
+                [26, 25, 24]
+            } else {
+                [17, 18, 19]
+            };
+            for (i, down) in brow.into_iter().zip([0.25, 0.175, 0.0875]) {
+                set(&[i], Vector3::new(0.0, -down, 0.0));
+            }
         }
         "eyeWideLeft" | "eyeWideRight" => {
             let pairs: [(usize, usize); 2] = if name.ends_with("Left") {
