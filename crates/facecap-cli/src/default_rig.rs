@@ -207,6 +207,11 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&near, Vector3::new(0.25 * s, 0.3, -0.05));
             let cheek = if s > 0.0 { [12, 13] } else { [4, 3] };
             set(&cheek, Vector3::new(0.1 * s, 0.15, 0.05));
+            // the lips' middle and the chin rise with each side's smile (as in ICT-FaceKit's
+            // mouthSmile: 0.2 and 0.16 cm); without it a broad smile read as mouthShrugLower
+            // and mouthPress as well (docs/expressions.md, "The smile's lips and chin")
+            set(&[51, 62, 57, 66], Vector3::new(0.0, 0.2, -0.1));
+            set(&[7, 8, 9], Vector3::new(0.0, 0.16, 0.0));
         }
         "mouthFrownLeft" | "mouthFrownRight" => {
             let (corner, inner, near) = if name.ends_with("Left") {
