@@ -702,7 +702,7 @@ impl Interpreter {
 fn step_name(step: &Step) -> &'static str {
     match step {
         Step::Conv { g, .. } if g.is_pointwise() => "CONV_2D 1x1",
-        Step::Conv { .. } => "CONV_2D im2col",
+        Step::Conv { .. } => "CONV_2D KxK",
         Step::Depthwise { .. } => "DEPTHWISE_CONV_2D",
         Step::MaxPool { .. } => "MAX_POOL_2D",
         Step::Add { .. } => "ADD",
@@ -789,7 +789,7 @@ fn exec(step: &Step, ws: &mut Workspace, level: kernels::Level) {
             if g.is_pointwise() {
                 kernels::gemm_at(level, &slots[*src], rows, w, &ep, o);
             } else {
-                kernels::conv_im2col(level, &slots[*src], g, w, &ep, &mut ws.col, o);
+                kernels::conv_window(level, &slots[*src], g, w, &ep, &mut ws.col, o);
             }
         }
         Step::Depthwise {

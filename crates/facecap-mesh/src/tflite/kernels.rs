@@ -265,6 +265,28 @@ mod v3 {
         bytemuck::cast(t)
     }
 
+    /// `V` consecutive vectors from `s`. (A plain loop: closures passed to
+    /// `std::array::from_fn` do not inherit the AVX2 target features, so they are
+    /// compiled out of line and the registers around the call go through memory.)
+    #[inline(always)]
+    fn load_n<const V: usize>(simd: V3, s: &[f32]) -> [f32x8; V] {
+        let mut v = [simd.splat_f32x8(0.0); V];
+        for (j, vj) in v.iter_mut().enumerate() {
+            *vj = load(&s[8 * j..8 * j + 8]);
+        }
+        v
+    }
+
+    /// `M` slices of `len` floats starting `stride` floats apart from `s[base..]`.
+    #[inline(always)]
+    fn rows_of<const M: usize>(s: &[f32], base: usize, stride: usize, len: usize) -> [&[f32]; M] {
+        let mut rows: [&[f32]; M] = [&[]; M];
+        for (r, row) in rows.iter_mut().enumerate() {
+            *row = &s[base + r * stride..base + r * stride + len];
+        }
+        rows
+    }
+
     /// `x` through a fused activation, on a register.
     #[inline(always)]
     fn activate(simd: V3, act: Activation, x: f32x8) -> f32x8 {
@@ -293,12 +315,25 @@ mod v3 {
         c0: usize,
         ncols: usize,
     ) {
-        let b: [f32x8; V] = std::array::from_fn(|j| load(&bias[8 * j..8 * j + 8]));
-        let mut acc = [b; M];
+        let mut acc = [load_n::<V>(simd, bias); M];
         let k = panel.len() / (8 * V);
-        let rows: [&[f32]; M] = std::array::from_fn(|r| &a[r * lda..r * lda + k]);
-        for (kk, w) in panel.chunks_exact(8 * V).enumerate() {
-            let wv: [f32x8; V] = std::array::from_fn(|j| load(&w[8 * j..8 * j + 8]));
+        accumulate(simd, &mut acc, rows_of::<M>(a, 0, lda, k), panel);
+        finish(simd, &acc, ep, out, at, ldo, c0, ncols);
+    }
+
+    /// `acc[r] += sum_kk rows[r][kk] * panel[kk]` over the rows' common length `k`
+    /// (panel `[k][8V]`; one broadcast per row and `kk`, `V` weight registers per `kk`).
+    #[inline(always)]
+    fn accumulate<const M: usize, const V: usize>(
+        simd: V3,
+        acc: &mut [[f32x8; V]; M],
+        rows: [&[f32]; M],
+        panel: &[f32],
+    ) {
+        let k = rows[0].len();
+        let panel = &panel[..k * 8 * V];
+        for kk in 0..k {
+            let wv = load_n::<V>(simd, &panel[kk * 8 * V..(kk + 1) * 8 * V]);
             for r in 0..M {
                 let x = simd.splat_f32x8(rows[r][kk]);
                 for j in 0..V {
@@ -306,11 +341,27 @@ mod v3 {
                 }
             }
         }
+    }
+
+    /// Epilogue and store of an `M x 8V` register block: row `r` goes to
+    /// `out[r * ldo..]`, flat output index `at + r * ldo`, channels `c0..c0 + ncols`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn finish<const M: usize, const V: usize>(
+        simd: V3,
+        acc: &[[f32x8; V]; M],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+        at: usize,
+        ldo: usize,
+        c0: usize,
+        ncols: usize,
+    ) {
         if ncols == 8 * V {
             // Vector epilogue: activation, residual add and ReLU / PReLU on the registers.
             let zero = simd.splat_f32x8(0.0);
             let alpha: [f32x8; V] = match ep.post {
-                Post::Prelu(al) => std::array::from_fn(|j| load(&al[c0 + 8 * j..c0 + 8 * j + 8])),
+                Post::Prelu(al) => load_n::<V>(simd, &al[c0..c0 + 8 * V]),
                 _ => [zero; V],
             };
             for (r, row) in acc.iter().enumerate() {
@@ -621,10 +672,13 @@ mod v3 {
 
     /// Rows of the register block for a panel of `v` registers.
     pub const fn block_rows(v: usize) -> usize {
+        // 3 x 24: nine accumulators, three weight registers and a broadcast leave room
+        // for the epilogue's constants (4 x 24 needs all sixteen registers, and the
+        // compiler then keeps two accumulators in memory across the `k` loop).
         match v {
             1 => 8,
             2 => 6,
-            _ => 4,
+            _ => 3,
         }
     }
 
@@ -657,7 +711,145 @@ mod v3 {
         }
     }
 
-    /// [`super::gemm`] with the AVX2/FMA blocks: `8 x 8`, `6 x 16` or `4 x 24` by panel.
+    /// A register block of [`conv_direct`]: `M` output pixels `pstride` floats apart
+    /// in the input, the first one's patch row `ky < kh` at `input[base + ky * rstride..]`
+    /// (`seg = KW * Cin` contiguous floats, the panel's rows `ky * seg..(ky + 1) * seg`).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn micro_direct<const M: usize, const V: usize>(
+        simd: V3,
+        input: &[f32],
+        base: usize,
+        pstride: usize,
+        rstride: usize,
+        (kh, seg): (usize, usize),
+        panel: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+        at: usize,
+        ldo: usize,
+        c0: usize,
+        ncols: usize,
+    ) {
+        let mut acc = [load_n::<V>(simd, bias); M];
+        let len = seg * 8 * V;
+        for ky in 0..kh {
+            let rows = rows_of::<M>(input, base + ky * rstride, pstride, seg);
+            accumulate(simd, &mut acc, rows, &panel[ky * len..(ky + 1) * len]);
+        }
+        finish(simd, &acc, ep, out, at, ldo, c0, ncols);
+    }
+
+    /// [`micro_direct`] over `m <= block_rows(V)` pixels, dispatched on `m`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn block_direct<const V: usize>(
+        simd: V3,
+        m: usize,
+        input: &[f32],
+        base: usize,
+        pstride: usize,
+        rstride: usize,
+        seg: (usize, usize),
+        panel: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+        at: usize,
+        n: usize,
+        c0: usize,
+        ncols: usize,
+    ) {
+        let (i, b, p, r, s) = (input, base, pstride, rstride, seg);
+        match m {
+            8 => micro_direct::<8, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            7 => micro_direct::<7, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            6 => micro_direct::<6, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            5 => micro_direct::<5, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            4 => micro_direct::<4, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            3 => micro_direct::<3, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            2 => micro_direct::<2, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+            _ => micro_direct::<1, V>(simd, i, b, p, r, s, panel, bias, ep, out, at, n, c0, ncols),
+        }
+    }
+
+    /// A convolution read straight from the input, without im2col (dilation 1; the
+    /// caller checks). With dilation 1 the taps of one kernel row of one output pixel
+    /// are `KW * Cin` contiguous input floats, in the packed weights' `k` order, so the
+    /// GEMM register blocks can broadcast them in place: per output row and panel,
+    /// blocks of pixels whose taps are all inside the image. Pixels with a tap in the
+    /// padding (borders, and rows with a kernel row outside the image) go through
+    /// [`super::conv_rows`] (im2col patches in `col`).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub fn conv_direct(
+        simd: V3,
+        input: &[f32],
+        g: &super::Geom,
+        w: &Packed,
+        ep: &Epilogue<'_>,
+        col: &mut [f32],
+        out: &mut [f32],
+    ) {
+        let level = super::Level::V3(simd);
+        let (n, c) = (w.n, g.ic);
+        let (kh, kw, sh, sw) = (g.win.kh, g.win.kw, g.win.sh, g.win.sw);
+        // Kernel rows and floats per kernel row (passed together; the kernel row count
+        // is not derived from the panel length, a division per block).
+        let seg = (kh, kw * c);
+        let rstride = g.iw * c;
+        let pstride = sw * c;
+        // Output columns whose taps are all inside the input row.
+        let lo = g.pl.div_ceil(sw).min(g.ow);
+        let hi = if g.iw + g.pl >= kw {
+            ((g.iw + g.pl - kw) / sw + 1).min(g.ow)
+        } else {
+            0
+        }
+        .max(lo);
+        for oy in 0..g.oh {
+            let p_row = oy * g.ow;
+            let iy0 = (oy * sh).checked_sub(g.pt).filter(|&y| y + kh <= g.ih);
+            let Some(iy0) = iy0.filter(|_| lo < hi) else {
+                super::conv_rows(level, input, g, w, ep, col, out, p_row, p_row + g.ow);
+                continue;
+            };
+            if lo > 0 {
+                super::conv_rows(level, input, g, w, ep, col, out, p_row, p_row + lo);
+            }
+            for pn in &w.panels {
+                let (panel, bias) = w.panel(pn);
+                let v = pn.width / 8;
+                let mr = block_rows(v);
+                let mut ox = lo;
+                while ox < hi {
+                    let m = (hi - ox).min(mr);
+                    let base = (iy0 * g.iw + ox * sw - g.pl) * c;
+                    let at = (p_row + ox) * n + pn.c0;
+                    let o = &mut out[at..];
+                    let (ps, rs) = (pstride, rstride);
+                    match v {
+                        1 => block_direct::<1>(
+                            simd, m, input, base, ps, rs, seg, panel, bias, ep, o, at, n, pn.c0, pn.cols,
+                        ),
+                        2 => block_direct::<2>(
+                            simd, m, input, base, ps, rs, seg, panel, bias, ep, o, at, n, pn.c0, pn.cols,
+                        ),
+                        _ => block_direct::<3>(
+                            simd, m, input, base, ps, rs, seg, panel, bias, ep, o, at, n, pn.c0, pn.cols,
+                        ),
+                    }
+                    ox += m;
+                }
+            }
+            if hi < g.ow {
+                super::conv_rows(level, input, g, w, ep, col, out, p_row + hi, p_row + g.ow);
+            }
+        }
+    }
+
+    /// [`super::gemm`] with the AVX2/FMA blocks: `8 x 8`, `6 x 16` or `3 x 24` by panel.
     #[inline(always)]
     pub fn gemm(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
         let (k, n) = (w.k, w.n);
@@ -756,19 +948,57 @@ pub fn conv_im2col(
     col: &mut [f32],
     out: &mut [f32],
 ) {
-    let (rows, k, n) = (g.oh * g.ow, w.k, w.n);
+    conv_rows(level, input, g, w, ep, col, out, 0, g.oh * g.ow);
+}
+
+/// Output pixels `p0..p1` (flat `oy * ow + ox`) of [`conv_im2col`], chunk by chunk;
+/// `out` and the residual are the whole output.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn conv_rows(
+    level: Level,
+    input: &[f32],
+    g: &Geom,
+    w: &Packed,
+    ep: &Epilogue<'_>,
+    col: &mut [f32],
+    out: &mut [f32],
+    p0: usize,
+    p1: usize,
+) {
+    let (k, n) = (w.k, w.n);
     let step = im2col_chunk_rows(k);
-    let mut p0 = 0;
-    while p0 < rows {
-        let p1 = (p0 + step).min(rows);
-        let c = &mut col[..(p1 - p0) * k];
-        im2col_rows(input, g, p0, p1, c);
+    let mut p = p0;
+    while p < p1 {
+        let q = (p + step).min(p1);
+        let c = &mut col[..(q - p) * k];
+        im2col_rows(input, g, p, q, c);
         let ep = Epilogue {
-            residual: ep.residual.map(|r| &r[p0 * n..]),
+            residual: ep.residual.map(|r| &r[p * n..]),
             ..*ep
         };
-        gemm_at(level, c, p1 - p0, w, &ep, &mut out[p0 * n..p1 * n]);
-        p0 = p1;
+        gemm_at(level, c, q - p, w, &ep, &mut out[p * n..q * n]);
+        p = q;
+    }
+}
+
+/// A convolution that is not 1x1 stride 1: read in place from the input by the SIMD
+/// kernel (dilation 1), through [`conv_im2col`] otherwise. `col` as for
+/// [`conv_im2col`].
+#[inline(always)]
+pub fn conv_window(
+    level: Level,
+    input: &[f32],
+    g: &Geom,
+    w: &Packed,
+    ep: &Epilogue<'_>,
+    col: &mut [f32],
+    out: &mut [f32],
+) {
+    match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::V3(simd) if g.win.dh == 1 && g.win.dw == 1 => v3::conv_direct(simd, input, g, w, ep, col, out),
+        _ => conv_im2col(level, input, g, w, ep, col, out),
     }
 }
 
@@ -1009,10 +1239,17 @@ pub fn depthwise(input: &[f32], g: &Geom, filter: &[f32], bias: &[f32], ep: &Epi
     }
 }
 
+/// Most kernel taps per axis of the 8-channel max pooling path.
+const POOL_TAPS: usize = 8;
+
 /// Max pooling (padding taps are ignored, as in TFLite).
 #[inline(always)]
 pub fn max_pool(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
     let c = g.ic;
+    if c >= 8 && g.win.kh <= POOL_TAPS && g.win.kw <= POOL_TAPS {
+        max_pool8(input, g, act, out);
+        return;
+    }
     for oy in 0..g.oh {
         for ox in 0..g.ow {
             let o = &mut out[(oy * g.ow + ox) * c..(oy * g.ow + ox + 1) * c];
@@ -1029,6 +1266,55 @@ pub fn max_pool(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
             }
             for d in o.iter_mut() {
                 *d = act.apply(*d);
+            }
+        }
+    }
+}
+
+/// [`max_pool`] 8 channels at a time on fixed-size arrays (registers), the valid taps
+/// of each row and pixel found once; `c >= 8`, at most [`POOL_TAPS`] taps per axis.
+/// With `c % 8 != 0` the last block overlaps the one before (the same maxima, stored
+/// twice).
+#[inline(always)]
+fn max_pool8(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
+    let c = g.ic;
+    let mut ty = [0usize; POOL_TAPS];
+    let mut tx = [0usize; POOL_TAPS];
+    for oy in 0..g.oh {
+        let mut ny = 0;
+        for ky in 0..g.win.kh {
+            if let Some(iy) = g.iy(oy, ky) {
+                ty[ny] = iy;
+                ny += 1;
+            }
+        }
+        for ox in 0..g.ow {
+            let mut nx = 0;
+            for kx in 0..g.win.kw {
+                if let Some(ix) = g.ix(ox, kx) {
+                    tx[nx] = ix;
+                    nx += 1;
+                }
+            }
+            let o = (oy * g.ow + ox) * c;
+            for cb in (0..c).step_by(8).map(|cb| cb.min(c - 8)) {
+                let mut acc = [f32::NEG_INFINITY; 8];
+                for &iy in &ty[..ny] {
+                    for &ix in &tx[..nx] {
+                        let i = (iy * g.iw + ix) * c + cb;
+                        let mut x = [0.0f32; 8];
+                        x.copy_from_slice(&input[i..i + 8]);
+                        for (a, v) in acc.iter_mut().zip(x) {
+                            *a = a.max(v);
+                        }
+                    }
+                }
+                for a in acc.iter_mut() {
+                    *a = act.apply(*a);
+                }
+                if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut out[o + cb..o + cb + 8]) {
+                    *dst = acc;
+                }
             }
         }
     }
@@ -1217,17 +1503,83 @@ mod tests {
                 for level in [Level::Portable, Level::detect()] {
                     let mut chunked = vec![0.0; g.oh * g.ow * oc];
                     conv_im2col(level, &input, &g, &packed, &ep, &mut scratch, &mut chunked);
-                    let d = chunked
-                        .iter()
-                        .zip(&want)
-                        .zip(&res)
-                        .map(|((c, w), r)| (c - (w + r).max(0.0)).abs())
-                        .fold(0.0, f32::max);
-                    assert!(d < 1e-4, "case {case} {level:?} chunked: max difference {d}");
+                    let mut direct = vec![0.0; g.oh * g.ow * oc];
+                    conv_window(level, &input, &g, &packed, &ep, &mut scratch, &mut direct);
+                    for (what, got) in [("chunked", &chunked), ("direct", &direct)] {
+                        let d = got
+                            .iter()
+                            .zip(&want)
+                            .zip(&res)
+                            .map(|((c, w), r)| (c - (w + r).max(0.0)).abs())
+                            .fold(0.0, f32::max);
+                        assert!(d < 1e-4, "case {case} {level:?} {what}: max difference {d}");
+                    }
                 }
             }
             let d = max_diff(&got, &want);
             assert!(d < 1e-4, "case {case}: max difference {d}");
+        }
+    }
+
+    /// The direct (no im2col) convolution on the shapes it is used for and around them:
+    /// 3x3/2 on 3 channels (the landmark model's first layer), 2x2/2, 5x5/2, stride 1,
+    /// odd and even sizes (padding on one or both sides), output channel counts that
+    /// are not multiples of 8, and a residual and PReLU in the epilogue.
+    #[test]
+    fn conv_window_matches_reference_at_borders() {
+        let mut rng = ChaCha8Rng::seed_from_u64(19);
+        for case in 0..48 {
+            let (k, s) = [(3usize, 2usize), (2, 2), (5, 2), (3, 1)][case % 4];
+            let padding = if case % 6 == 5 { Padding::Valid } else { Padding::Same };
+            let ic = [3usize, 1, 16, 5][(case / 4) % 4];
+            let oc = [16usize, 5, 24, 8, 40, 13][(case / 2) % 6];
+            let (ih, iw) = (rng.random_range(k..24), rng.random_range(k..24));
+            let win = Window {
+                kh: k,
+                kw: k,
+                sh: s,
+                sw: s,
+                dh: 1,
+                dw: 1,
+                padding,
+            };
+            let Some(g) = Geom::new(ih, iw, ic, win) else { continue };
+            let input = rnd(&mut rng, ih * iw * ic);
+            let filter = rnd(&mut rng, oc * k * k * ic);
+            let bias = rnd(&mut rng, oc);
+            let res = rnd(&mut rng, g.oh * g.ow * oc);
+            let alpha = rnd(&mut rng, oc);
+            let conv = reference::conv(&input, &g, &filter, Some(&bias), oc, Activation::None);
+            let want: Vec<f32> = conv
+                .iter()
+                .zip(&res)
+                .enumerate()
+                .map(|(i, (&c, &r))| {
+                    let v = c + r;
+                    if v >= 0.0 {
+                        v
+                    } else {
+                        v * alpha[i % oc]
+                    }
+                })
+                .collect();
+            let packed = Packed::new(&filter, Some(&bias), oc, k * k * ic);
+            let ep = Epilogue {
+                act: Activation::None,
+                residual: Some(&res),
+                post: Post::Prelu(&alpha),
+            };
+            let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
+            let mut scratch = vec![0.0; rows * k * k * ic];
+            for level in [Level::Portable, Level::detect()] {
+                let mut got = vec![0.0; g.oh * g.ow * oc];
+                conv_window(level, &input, &g, &packed, &ep, &mut scratch, &mut got);
+                let d = max_diff(&got, &want);
+                assert!(
+                    d < 1e-4,
+                    "case {case} {ih}x{iw}x{ic} -> {oc} k{k}/{s} {level:?}: max difference {d}"
+                );
+            }
         }
     }
 
@@ -1317,6 +1669,52 @@ mod tests {
                 let d = max_diff(&got, &want);
                 assert!(d < 1e-5, "case {case} {level:?}: max difference {d}");
             }
+        }
+    }
+
+    /// Max pooling on random shapes (8-channel path with overlapping last block, and
+    /// the per-channel loop below 8 channels) against a plain per-element loop.
+    #[test]
+    fn max_pool_matches_plain_loop_on_random_shapes() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        for case in 0..40 {
+            let (k, s) = [(2usize, 2usize), (3, 2), (3, 1), (2, 1)][case % 4];
+            let padding = if case % 3 == 0 { Padding::Valid } else { Padding::Same };
+            let c = [16usize, 28, 8, 5, 42, 1][case % 6];
+            let (ih, iw) = (rng.random_range(k..15), rng.random_range(k..15));
+            let win = Window {
+                kh: k,
+                kw: k,
+                sh: s,
+                sw: s,
+                dh: 1,
+                dw: 1,
+                padding,
+            };
+            let Some(g) = Geom::new(ih, iw, c, win) else { continue };
+            let input = rnd(&mut rng, ih * iw * c);
+            let mut want = vec![f32::NEG_INFINITY; g.oh * g.ow * c];
+            for oy in 0..g.oh {
+                for ox in 0..g.ow {
+                    for ky in 0..k {
+                        for kx in 0..k {
+                            let (Some(iy), Some(ix)) = (g.iy(oy, ky), g.ix(ox, kx)) else {
+                                continue;
+                            };
+                            for ch in 0..c {
+                                let w = &mut want[(oy * g.ow + ox) * c + ch];
+                                *w = w.max(input[(iy * iw + ix) * c + ch]);
+                            }
+                        }
+                    }
+                }
+            }
+            for v in want.iter_mut() {
+                *v = Activation::Relu6.apply(*v);
+            }
+            let mut got = vec![0.0; g.oh * g.ow * c];
+            max_pool(&input, &g, Activation::Relu6, &mut got);
+            assert_eq!(got, want, "case {case} {ih}x{iw}x{c} k{k}/{s}");
         }
     }
 
