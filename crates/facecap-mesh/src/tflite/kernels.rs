@@ -1446,6 +1446,40 @@ mod tests {
         (0..n).map(|_| rng.random_range(-1.0f32..1.0)).collect()
     }
 
+    /// A `k x k` window of stride `s`, dilation 1.
+    fn square_window(k: usize, s: usize, padding: Padding) -> Window {
+        Window {
+            kh: k,
+            kw: k,
+            sh: s,
+            sw: s,
+            dh: 1,
+            dw: 1,
+            padding,
+        }
+    }
+
+    /// Geometry, input, filter and bias of a random convolution.
+    type RandomConv = (Geom, Vec<f32>, Vec<f32>, Vec<f32>);
+
+    /// A `k x k` stride-`s` convolution (dilation 1) on an `ih x iw x ic` input with `oc`
+    /// outputs: its geometry and random input, filter and bias (`None` when the window
+    /// does not fit).
+    #[allow(clippy::too_many_arguments)]
+    fn random_conv(
+        rng: &mut ChaCha8Rng,
+        ih: usize,
+        iw: usize,
+        ic: usize,
+        oc: usize,
+        k: usize,
+        s: usize,
+        padding: Padding,
+    ) -> Option<RandomConv> {
+        let g = Geom::new(ih, iw, ic, square_window(k, s, padding))?;
+        Some((g, rnd(rng, ih * iw * ic), rnd(rng, oc * k * k * ic), rnd(rng, oc)))
+    }
+
     fn max_diff(a: &[f32], b: &[f32]) -> f32 {
         assert_eq!(a.len(), b.len());
         a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
@@ -1464,19 +1498,9 @@ mod tests {
             let (ih, iw) = (rng.random_range(k..top), rng.random_range(k..top));
             let ic = rng.random_range(1..20);
             let oc = rng.random_range(1..40);
-            let win = Window {
-                kh: k,
-                kw: k,
-                sh: s,
-                sw: s,
-                dh: 1,
-                dw: 1,
-                padding,
+            let Some((g, input, filter, bias)) = random_conv(&mut rng, ih, iw, ic, oc, k, s, padding) else {
+                continue;
             };
-            let Some(g) = Geom::new(ih, iw, ic, win) else { continue };
-            let input = rnd(&mut rng, ih * iw * ic);
-            let filter = rnd(&mut rng, oc * k * k * ic);
-            let bias = rnd(&mut rng, oc);
             let act = if case % 2 == 0 {
                 Activation::Relu
             } else {
@@ -1534,19 +1558,9 @@ mod tests {
             let ic = [3usize, 1, 16, 5][(case / 4) % 4];
             let oc = [16usize, 5, 24, 8, 40, 13][(case / 2) % 6];
             let (ih, iw) = (rng.random_range(k..24), rng.random_range(k..24));
-            let win = Window {
-                kh: k,
-                kw: k,
-                sh: s,
-                sw: s,
-                dh: 1,
-                dw: 1,
-                padding,
+            let Some((g, input, filter, bias)) = random_conv(&mut rng, ih, iw, ic, oc, k, s, padding) else {
+                continue;
             };
-            let Some(g) = Geom::new(ih, iw, ic, win) else { continue };
-            let input = rnd(&mut rng, ih * iw * ic);
-            let filter = rnd(&mut rng, oc * k * k * ic);
-            let bias = rnd(&mut rng, oc);
             let res = rnd(&mut rng, g.oh * g.ow * oc);
             let alpha = rnd(&mut rng, oc);
             let conv = reference::conv(&input, &g, &filter, Some(&bias), oc, Activation::None);
@@ -1641,15 +1655,7 @@ mod tests {
                 2 | 3 => rng.random_range(9..50),
                 _ => rng.random_range(1..50),
             };
-            let win = Window {
-                kh: k,
-                kw: k,
-                sh: s,
-                sw: s,
-                dh: 1,
-                dw: 1,
-                padding,
-            };
+            let win = square_window(k, s, padding);
             let Some(g) = Geom::new(ih, iw, c, win) else { continue };
             let input = rnd(&mut rng, ih * iw * c);
             let filter = rnd(&mut rng, k * k * c);
@@ -1682,15 +1688,7 @@ mod tests {
             let padding = if case % 3 == 0 { Padding::Valid } else { Padding::Same };
             let c = [16usize, 28, 8, 5, 42, 1][case % 6];
             let (ih, iw) = (rng.random_range(k..15), rng.random_range(k..15));
-            let win = Window {
-                kh: k,
-                kw: k,
-                sh: s,
-                sw: s,
-                dh: 1,
-                dw: 1,
-                padding,
-            };
+            let win = square_window(k, s, padding);
             let Some(g) = Geom::new(ih, iw, c, win) else { continue };
             let input = rnd(&mut rng, ih * iw * c);
             let mut want = vec![f32::NEG_INFINITY; g.oh * g.ow * c];
