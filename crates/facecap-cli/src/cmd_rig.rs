@@ -73,19 +73,16 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 })
             })
             .collect();
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&json!({"rig": name, "shapes": rows}))?
-        );
+        crate::out::println(&serde_json::to_string_pretty(&json!({"rig": name, "shapes": rows}))?);
         return Ok(std::process::ExitCode::SUCCESS);
     }
-    println!(
-        "Rig: {name} ({} shapes, {} mapped landmarks)\n",
+    let mut text = format!(
+        "Rig: {name} ({} shapes, {} mapped landmarks)\n\n",
         rig.num_shapes(),
         rig.num_mapped()
     );
-    println!("| shape | motion (IOD) | max point (IOD) | independence | most collinear (cos) | default prior | exclusive with |");
-    println!("|---|---|---|---|---|---|---|");
+    text.push_str("| shape | motion (IOD) | max point (IOD) | independence | most collinear (cos) | default prior | exclusive with |\n");
+    text.push_str("|---|---|---|---|---|---|---|\n");
     for (k, v) in table.iter().enumerate() {
         let closest = v
             .closest
@@ -96,8 +93,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             None => format!("ridge {:.0}", priors.ridge[k]),
         };
         let ex = partners(k);
-        println!(
-            "| {} | {:.3} | {:.3} | {:.2} | {} | {} | {} |",
+        text.push_str(&format!(
+            "| {} | {:.3} | {:.3} | {:.2} | {} | {} | {} |\n",
             v.name,
             v.motion,
             v.max_point,
@@ -105,7 +102,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             closest,
             prior,
             if ex.is_empty() { "-".to_string() } else { ex.join(", ") }
-        );
+        ));
     }
+    crate::out::println(text.trim_end());
     Ok(std::process::ExitCode::SUCCESS)
 }

@@ -18,8 +18,9 @@
 //! and ARKit's antagonist pairs (`eyeWide` vs `eyeBlink`/`eyeSquint`, `browDown` vs
 //! `browInnerUp`/`browOuterUp`, `mouthSmile` vs `mouthFrown`, `mouthPucker` vs
 //! `mouthStretch`/`mouthSmile`, `mouthFunnel` vs `mouthStretch`, `mouthLeft` vs
-//! `mouthRight`, `jawLeft` vs `jawRight`, `mouthPress` vs `mouthFunnel`) are exclusive; blinks, the fastest action, get a
-//! tenth of the temporal weight. `docs/expressions.md` has the table
+//! `mouthRight`, `jawLeft` vs `jawRight`, `mouthPress` vs `mouthFunnel`, `mouthRollUpper` vs
+//! `mouthSmile`/`mouthUpperUp`) are exclusive; blinks, the fastest action, get a tenth of
+//! the temporal weight. `docs/expressions.md` has the table
 //! for the built-in rig and the ICT rig.
 
 use facecap_core::landmarks::NUM_LANDMARKS;
@@ -71,7 +72,7 @@ pub const BASE_RIDGE: f64 = 15.0;
 pub const BLINK_TEMPORAL: f64 = 0.1;
 
 /// Exclusive pairs by ARKit base name (sided names are paired side by side).
-const EXCLUSIVE: [(&str, &str); 11] = [
+const EXCLUSIVE: [(&str, &str); 13] = [
     ("eyeWide", "eyeBlink"),
     ("eyeWide", "eyeSquint"),
     ("browDown", "browInnerUp"),
@@ -83,6 +84,11 @@ const EXCLUSIVE: [(&str, &str); 11] = [
     ("mouthLeft", "mouthRight"),
     ("jawLeft", "jawRight"),
     ("mouthPress", "mouthFunnel"),
+    // rolling the upper lip in hides its red; a smile and mouthUpperUp bare it. Solved
+    // freely, ICT's mouthRollUpper took part of every smile (r -0.43 against MediaPipe on
+    // liveportrait_d18); docs/expressions.md, "Rolling the upper lip".
+    ("mouthRollUpper", "mouthSmile"),
+    ("mouthRollUpper", "mouthUpperUp"),
 ];
 
 /// Coupled shapes by ARKit base name, `(child, parent)`: the child acts only with its
