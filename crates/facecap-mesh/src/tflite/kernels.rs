@@ -298,29 +298,6 @@ mod v3 {
         }
     }
 
-    /// `M x 8V` register block over one panel: `V` weight registers and one broadcast
-    /// per `k`, `M * V` accumulators (at most 12), epilogue on the registers.
-    #[allow(clippy::too_many_arguments)]
-    #[inline(always)]
-    fn micro<const M: usize, const V: usize>(
-        simd: V3,
-        a: &[f32],
-        lda: usize,
-        panel: &[f32],
-        bias: &[f32],
-        ep: &Epilogue<'_>,
-        out: &mut [f32],
-        at: usize,
-        ldo: usize,
-        c0: usize,
-        ncols: usize,
-    ) {
-        let mut acc = [load_n::<V>(simd, bias); M];
-        let k = panel.len() / (8 * V);
-        accumulate(simd, &mut acc, rows_of::<M>(a, 0, lda, k), panel);
-        finish(simd, &acc, ep, out, at, ldo, c0, ncols);
-    }
-
     /// `acc[r] += sum_kk rows[r][kk] * panel[kk]` over the rows' common length `k`
     /// (panel `[k][8V]`; one broadcast per row and `kk`, `V` weight registers per `kk`).
     #[inline(always)]
@@ -699,16 +676,9 @@ mod v3 {
         c0: usize,
         ncols: usize,
     ) {
-        match m {
-            8 => micro::<8, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            7 => micro::<7, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            6 => micro::<6, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            5 => micro::<5, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            4 => micro::<4, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            3 => micro::<3, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            2 => micro::<2, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-            _ => micro::<1, V>(simd, a, k, panel, bias, ep, out, at, n, c0, ncols),
-        }
+        // rows of `a` are `k` floats apart: one kernel row of `panel.len() / 8V` taps
+        let seg = (1, panel.len() / (8 * V));
+        block_direct::<V>(simd, m, a, 0, k, 0, seg, panel, bias, ep, out, at, n, c0, ncols);
     }
 
     /// A register block of [`conv_direct`]: `M` output pixels `pstride` floats apart
