@@ -347,6 +347,8 @@ struct BlinkShape {
     side: Option<char>,
     look_down: Option<usize>,
     squint: Option<usize>,
+    /// `eyeLookIn*` and `eyeLookOut*`: faded by [`closed_eye_sideways`].
+    sideways: [Option<usize>; 2],
 }
 
 impl BlinkShape {
@@ -364,6 +366,7 @@ impl BlinkShape {
                     side,
                     look_down: find("eyeLookDown", side),
                     squint: find("eyeSquint", side),
+                    sideways: [find("eyeLookIn", side), find("eyeLookOut", side)],
                 })
             })
             .collect()
@@ -381,7 +384,21 @@ impl BlinkShape {
         if let Some(k) = self.squint {
             weights[k] = s;
         }
+        for k in self.sideways.into_iter().flatten() {
+            weights[k] = closed_eye_sideways(blink, weights[k]);
+        }
     }
+}
+
+/// A sideways gaze weight (`eyeLookIn*` / `eyeLookOut*`) of an eye whose final `eyeBlink`
+/// is `blink`: `look * (1 - blink)`. A closing lid covers the iris, and the image's iris
+/// centre (the dark region's mode, `facecap_landmarks::gaze`) then follows the lid's edge,
+/// not the eye. Measured (docs/expressions.md, "The closed eye"): mean r +0.005 with dlib's
+/// points (the image's iris), -0.0003 with the mesh's (the model's iris). Non-finite
+/// inputs count as 0.
+pub fn closed_eye_sideways(blink: f64, look: f64) -> f64 {
+    let finite = |x: f64| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
+    finite(look) * (1.0 - finite(blink))
 }
 
 /// `(eyeLookDown, eyeSquint)` of one eye given its final `eyeBlink` (after
@@ -1101,18 +1118,30 @@ mod tests {
             "eyeSquintLeft",
             "eyeSquintRight",
             "jawOpen",
+            "eyeLookInLeft",
+            "eyeLookOutRight",
         ]
         .iter()
         .map(|s| s.to_string())
         .collect();
         let sides = BlinkShape::of_rig(&names);
         assert_eq!(sides.len(), 2);
-        // left eye closed, right eye open and looking down
-        let mut w = vec![1.0, 0.0, 0.0, 0.6, 0.1, 0.2, 0.7];
+        // left eye closed, right eye open and looking down and out
+        let mut w = vec![1.0, 0.0, 0.0, 0.6, 0.1, 0.2, 0.7, 0.5, 0.5];
         for b in &sides {
             b.drive_closed_eye(&mut w);
         }
-        let want = [1.0, 0.0, CLOSED_EYE_LOOK_DOWN, 0.6, 0.1 + CLOSED_EYE_SQUINT, 0.2, 0.7];
+        let want = [
+            1.0,
+            0.0,
+            CLOSED_EYE_LOOK_DOWN,
+            0.6,
+            0.1 + CLOSED_EYE_SQUINT,
+            0.2,
+            0.7,
+            0.0,
+            0.5,
+        ];
         for (got, want) in w.iter().zip(want) {
             assert!((got - want).abs() < 1e-12, "{w:?}");
         }
@@ -1123,5 +1152,8 @@ mod tests {
         // weights stay weights
         assert_eq!(closed_eye_weights(1.0, f64::NAN, 0.95), (CLOSED_EYE_LOOK_DOWN, 1.0));
         assert_eq!(closed_eye_weights(f64::INFINITY, 0.2, -1.0), (0.2, 0.0));
+        assert!((closed_eye_sideways(0.25, 0.4) - 0.3).abs() < 1e-12);
+        assert_eq!(closed_eye_sideways(f64::NAN, 0.4), 0.4);
+        assert_eq!(closed_eye_sideways(0.5, f64::NAN), 0.0);
     }
 }
