@@ -73,16 +73,19 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 })
             })
             .collect();
-        crate::out::println(&serde_json::to_string_pretty(&json!({"rig": name, "shapes": rows}))?);
+        outln!(
+            "{}",
+            serde_json::to_string_pretty(&json!({"rig": name, "shapes": rows}))?
+        );
         return Ok(std::process::ExitCode::SUCCESS);
     }
-    let mut text = format!(
-        "Rig: {name} ({} shapes, {} mapped landmarks)\n\n",
+    outln!(
+        "Rig: {name} ({} shapes, {} mapped landmarks)\n",
         rig.num_shapes(),
         rig.num_mapped()
     );
-    text.push_str("| shape | motion (IOD) | max point (IOD) | independence | most collinear (cos) | default prior | exclusive with |\n");
-    text.push_str("|---|---|---|---|---|---|---|\n");
+    outln!("| shape | motion (IOD) | max point (IOD) | independence | most collinear (cos) | default prior | exclusive with |");
+    outln!("|---|---|---|---|---|---|---|");
     for (k, v) in table.iter().enumerate() {
         let closest = v
             .closest
@@ -93,8 +96,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             None => format!("ridge {:.0}", priors.ridge[k]),
         };
         let ex = partners(k);
-        text.push_str(&format!(
-            "| {} | {:.3} | {:.3} | {:.2} | {} | {} | {} |\n",
+        outln!(
+            "| {} | {:.3} | {:.3} | {:.2} | {} | {} | {} |",
             v.name,
             v.motion,
             v.max_point,
@@ -102,8 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             closest,
             prior,
             if ex.is_empty() { "-".to_string() } else { ex.join(", ") }
-        ));
+        );
     }
-    crate::out::println(text.trim_end());
     Ok(std::process::ExitCode::SUCCESS)
 }

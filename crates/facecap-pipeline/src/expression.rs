@@ -352,15 +352,15 @@ struct BlinkShape {
 }
 
 impl BlinkShape {
-    /// Every `eyeBlink*` of `names`, with the `eyeLookDown*` and `eyeSquint*` of its side.
+    /// Every `eyeBlink*` of `names`, with the `eyeLookDown*`, `eyeSquint*`, `eyeLookIn*`
+    /// and `eyeLookOut*` of its side.
     fn of_rig(names: &[String]) -> Vec<Self> {
-        use facecap_solve::observability::split_side;
-        let find = |base: &str, side: Option<char>| names.iter().position(|n| split_side(n) == (base, side));
+        let find = |base: &str, side: Option<char>| shape_index(names, base, side);
         names
             .iter()
             .enumerate()
             .filter_map(|(k, n)| {
-                let (base, side) = split_side(n);
+                let (base, side) = facecap_solve::observability::split_side(n);
                 (base == "eyeBlink").then(|| BlinkShape {
                     blink: k,
                     side,
@@ -372,12 +372,12 @@ impl BlinkShape {
             .collect()
     }
 
-    /// Applies [`closed_eye_weights`] to this side's shapes in `weights`.
+    /// Applies [`closed_eye_weights`] and [`closed_eye_sideways`] to this side's shapes in
+    /// `weights`.
     fn drive_closed_eye(&self, weights: &mut [f64]) {
         let blink = weights[self.blink];
-        let look_down = self.look_down.map(|k| weights[k]);
-        let squint = self.squint.map(|k| weights[k]);
-        let (d, s) = closed_eye_weights(blink, look_down.unwrap_or(0.0), squint.unwrap_or(0.0));
+        let value = |k: Option<usize>| k.map_or(0.0, |k| weights[k]);
+        let (d, s) = closed_eye_weights(blink, value(self.look_down), value(self.squint));
         if let Some(k) = self.look_down {
             weights[k] = d;
         }
@@ -397,8 +397,22 @@ impl BlinkShape {
 /// points (the image's iris), -0.0003 with the mesh's (the model's iris). Non-finite
 /// inputs count as 0.
 pub fn closed_eye_sideways(blink: f64, look: f64) -> f64 {
-    let finite = |x: f64| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
-    finite(look) * (1.0 - finite(blink))
+    unit(look) * (1.0 - unit(blink))
+}
+
+/// A weight clamped to [0, 1]; non-finite counts as 0.
+fn unit(x: f64) -> f64 {
+    if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// The index in `names` of the shape named `base` on `side` (ARKit or ICT spelling).
+fn shape_index(names: &[String], base: &str, side: Option<char>) -> Option<usize> {
+    use facecap_solve::observability::split_side;
+    names.iter().position(|n| split_side(n) == (base, side))
 }
 
 /// `(eyeLookDown, eyeSquint)` of one eye given its final `eyeBlink` (after
@@ -406,8 +420,7 @@ pub fn closed_eye_sideways(blink: f64, look: f64) -> f64 {
 /// [`CLOSED_EYE_LOOK_DOWN`] and [`CLOSED_EYE_SQUINT`]. Non-finite inputs count as 0; both
 /// results are in [0, 1].
 pub fn closed_eye_weights(blink: f64, look_down: f64, squint: f64) -> (f64, f64) {
-    let finite = |x: f64| if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 };
-    let (b, d, s) = (finite(blink), finite(look_down), finite(squint));
+    let (b, d, s) = (unit(blink), unit(look_down), unit(squint));
     (d.max(CLOSED_EYE_LOOK_DOWN * b), (s + CLOSED_EYE_SQUINT * b).min(1.0))
 }
 
@@ -479,11 +492,10 @@ const GAZE_REST_EVERY: usize = 15;
 
 impl Gaze {
     fn new(names: &[String]) -> Self {
-        use facecap_solve::observability::split_side;
         let mut idx = [None; 8];
         for (slot, want) in idx.iter_mut().zip(facecap_landmarks::gaze::GAZE_WEIGHT_NAMES) {
-            let (wb, ws) = split_side(want);
-            *slot = names.iter().position(|n| split_side(n) == (wb, ws));
+            let (base, side) = facecap_solve::observability::split_side(want);
+            *slot = shape_index(names, base, side);
         }
         Gaze { idx, ..Gaze::default() }
     }
