@@ -76,6 +76,14 @@ fn frames(c: &mut Criterion) {
             tracker.track_into(&view, 0.0, &mut ws, &mut fresh, &mut mesh).unwrap()
         })
     });
+    // The landmark model's input: the tracked face region sampled to 256 x 256.
+    use facecap_mesh::roi::{warp_to_tensor, Affine, BilinearTable, Border, ValueMap};
+    let (table, n) = (BilinearTable::new(), facecap_mesh::tracker::LANDMARK_INPUT);
+    let map = Affine::for_rect(&mesh.rect, view.width, view.height, n);
+    let mut tensor = vec![0.0f32; n * n * 3];
+    c.bench_function("frame/warp_256", |b| {
+        b.iter(|| warp_to_tensor(&view, &map, n, Border::Replicate, ValueMap::UNIT, &table, &mut tensor))
+    });
 }
 
 criterion_group! {

@@ -195,6 +195,11 @@ impl ValueMap {
 
 /// Samples an `n x n x 3` float tensor from `img` through `map`: value
 /// `v8 * values.scale + values.offset`, `v8` the rounded 8-bit bilinear sample.
+///
+/// With AVX2, interior pixels mix their three channels in vector registers and each
+/// row's source positions are computed in one vector loop first; the integer sums, the
+/// roundings and the float operations are the scalar ones, so the tensor is the same bit
+/// for bit (unit test `warp_equals_the_per_pixel_formula`).
 pub fn warp_to_tensor(
     img: &RgbView<'_>,
     map: &Affine,
@@ -204,6 +209,100 @@ pub fn warp_to_tensor(
     table: &BilinearTable,
     out: &mut [f32],
 ) {
+    let args = WarpArgs {
+        img,
+        map,
+        n,
+        border,
+        values,
+        table,
+    };
+    #[cfg(target_arch = "x86_64")]
+    if let Some(v3) = pulp::x86::V3::try_new() {
+        pulp::Simd::vectorize(v3, WarpV3 { v3, args, out });
+        return;
+    }
+    warp_with(&args, out, |_, _, _| None);
+}
+
+/// The inputs of [`warp_to_tensor`].
+struct WarpArgs<'a, 'b> {
+    img: &'a RgbView<'b>,
+    map: &'a Affine,
+    n: usize,
+    border: Border,
+    values: ValueMap,
+    table: &'a BilinearTable,
+}
+
+/// [`warp_with`] compiled for AVX2, with the interior pixels' bilinear mix in vector
+/// registers ([`mix_v3`]).
+#[cfg(target_arch = "x86_64")]
+struct WarpV3<'a, 'b, 'c> {
+    v3: pulp::x86::V3,
+    args: WarpArgs<'a, 'b>,
+    out: &'c mut [f32],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl pulp::WithSimd for WarpV3<'_, '_, '_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) {
+        let WarpV3 { v3, args, out } = self;
+        let ValueMap { scale, offset } = args.values;
+        warp_with(&args, out, |top, bottom, wt| mix_v3(v3, top, bottom, wt, scale, offset));
+    }
+}
+
+/// The three channels of one interior pixel (and a spare fourth lane) from its
+/// neighbours' rows: `top` and `bottom` start at the left neighbour and hold at least 8
+/// bytes, else `None`. The same integer sums, rounding and `v8 * scale + offset` as the
+/// scalar mix, so bit for bit the same values.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn mix_v3(v3: pulp::x86::V3, top: &[u8], bottom: &[u8], wt: &[i32; 4], scale: f32, offset: f32) -> Option<[f32; 4]> {
+    use core::arch::x86_64::__m128i;
+    let (t, b): ([u8; 8], [u8; 8]) = (top.get(..8)?.try_into().ok()?, bottom.get(..8)?.try_into().ok()?);
+    let t: __m128i = pulp::cast([u64::from_le_bytes(t), 0]);
+    let b: __m128i = pulp::cast([u64::from_le_bytes(b), 0]);
+    let (sse2, sse41) = (v3.sse2, v3.sse4_1);
+    // lanes: channels 0-2 of the left (right) neighbour and one spare byte
+    let tl = sse41._mm_cvtepu8_epi32(t);
+    let tr = sse41._mm_cvtepu8_epi32(sse2._mm_srli_si128::<3>(t));
+    let bl = sse41._mm_cvtepu8_epi32(b);
+    let br = sse41._mm_cvtepu8_epi32(sse2._mm_srli_si128::<3>(b));
+    let w = |k: usize| sse2._mm_set1_epi32(wt[k]);
+    let s = sse2._mm_add_epi32(
+        sse2._mm_add_epi32(sse41._mm_mullo_epi32(tl, w(0)), sse41._mm_mullo_epi32(tr, w(1))),
+        sse2._mm_add_epi32(sse41._mm_mullo_epi32(bl, w(2)), sse41._mm_mullo_epi32(br, w(3))),
+    );
+    let v8 = sse2._mm_srai_epi32::<15>(sse2._mm_add_epi32(s, sse2._mm_set1_epi32(1 << 14)));
+    let v8 = sse41._mm_min_epi32(
+        sse41._mm_max_epi32(v8, sse2._mm_setzero_si128()),
+        sse2._mm_set1_epi32(255),
+    );
+    let f = sse2._mm_cvtepi32_ps(v8);
+    let f = v3.sse._mm_add_ps(
+        v3.sse._mm_mul_ps(f, v3.sse._mm_set1_ps(scale)),
+        v3.sse._mm_set1_ps(offset),
+    );
+    Some(pulp::cast(f))
+}
+
+/// The warp; `fast(top, bottom, weights)` may mix an interior pixel's three channels
+/// (see [`mix_v3`]).
+#[inline(always)]
+fn warp_with(args: &WarpArgs<'_, '_>, out: &mut [f32], fast: impl Fn(&[u8], &[u8], &[i32; 4]) -> Option<[f32; 4]>) {
+    let WarpArgs {
+        img,
+        map,
+        n,
+        border,
+        values,
+        table,
+    } = *args;
     let ValueMap { scale, offset } = values;
     let (w, h) = (img.width as i64, img.height as i64);
     let px = |x: i64, y: i64, c: usize| -> i32 {
@@ -239,14 +338,25 @@ pub fn warp_to_tensor(
             *c = column(u);
         }
     }
+    // OpenCV: X = saturate_cast<int>(x * INTER_TAB_SIZE), i.e. cvRound (see `fixed`).
+    let mut fx = [0i64; MAX_PRECOMPUTED_COLUMNS];
+    let mut fy = [0i64; MAX_PRECOMPUTED_COLUMNS];
     for (v, out_row) in out.chunks_exact_mut(3 * n).take(n).enumerate() {
         let (bx, by) = (v as f64 * map.dv[0], v as f64 * map.dv[1]);
+        if precomputed {
+            // the row's positions first: one loop of vector arithmetic
+            for ((c, x), y) in cols[..n].iter().zip(&mut fx[..n]).zip(&mut fy[..n]) {
+                *x = fixed(c[0] + bx);
+                *y = fixed(c[1] + by);
+            }
+        }
         for (u, o) in out_row.chunks_exact_mut(3).enumerate() {
-            let [ax, ay] = if precomputed { cols[u] } else { column(u) };
-            let (sx, sy) = (ax + bx, ay + by);
-            // OpenCV: X = saturate_cast<int>(x * INTER_TAB_SIZE), i.e. cvRound.
-            let xi = rint((sx * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT)) as i64;
-            let yi = rint((sy * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT)) as i64;
+            let (xi, yi) = if precomputed {
+                (fx[u], fy[u])
+            } else {
+                let [ax, ay] = column(u);
+                (fixed(ax + bx), fixed(ay + by))
+            };
             let (x0, y0) = (xi >> 5, yi >> 5);
             let wt = &table.w[((yi & 31) * 32 + (xi & 31)) as usize];
             let mix = |p00: i32, p01: i32, p10: i32, p11: i32| -> f32 {
@@ -257,9 +367,13 @@ pub fn warp_to_tensor(
             if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
                 // the four neighbours: one slice from (x0, y0) to (x0 + 1, y0 + 1)
                 let i = ((y0 * w + x0) * 3) as usize;
-                let p = &img.data[i..i + row + 6];
-                for c in 0..3 {
-                    o[c] = mix(p[c] as i32, p[c + 3] as i32, p[row + c] as i32, p[row + c + 3] as i32);
+                if let Some(v) = fast(&img.data[i..], &img.data[(i + row).min(img.data.len())..], wt) {
+                    o.copy_from_slice(&v[..3]);
+                } else {
+                    let p = &img.data[i..i + row + 6];
+                    for c in 0..3 {
+                        o[c] = mix(p[c] as i32, p[c + 3] as i32, p[row + c] as i32, p[row + c + 3] as i32);
+                    }
                 }
             } else if border == Border::Zero && (x0 + 1 < 0 || y0 + 1 < 0 || x0 >= w || y0 >= h) {
                 o.fill(lut[0]);
@@ -283,11 +397,24 @@ const MAX_PRECOMPUTED_COLUMNS: usize = 512;
 /// Source coordinates (in 1/32 px) are clamped to this before rounding.
 const COORD_LIMIT: f64 = (1u64 << 40) as f64;
 
+/// 1.5 * 2^52: a float of that exponent has a unit last place, see [`rint`].
+const MAGIC: f64 = 6_755_399_441_055_744.0;
+
+/// A source coordinate in 1/32 px as OpenCV's `saturate_cast<int>(x * INTER_TAB_SIZE)`:
+/// `rint(s * 32)` after clamping to [`COORD_LIMIT`]. `v + MAGIC` has the exponent of
+/// 2^52 for |v| < 2^51, so its bits minus MAGIC's are the integer `rint(v)` (the same sum
+/// as [`rint`], read without a float-to-integer conversion, so that a row of positions is
+/// plain vector arithmetic).
+#[inline(always)]
+fn fixed(s: f64) -> i64 {
+    let v = (s * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT);
+    ((v + MAGIC).to_bits() as i64).wrapping_sub(MAGIC.to_bits() as i64)
+}
+
 /// Round half to even (`cvRound` / `lrint` in the default rounding mode) without a libm
 /// call: adding and subtracting 1.5 * 2^52 leaves the nearest integer for |v| < 2^51.
-#[inline(always)]
+#[cfg(test)]
 fn rint(v: f64) -> f64 {
-    const MAGIC: f64 = 6_755_399_441_055_744.0;
     (v + MAGIC) - MAGIC
 }
 
@@ -336,36 +463,52 @@ mod tests {
     #[test]
     fn warp_equals_the_per_pixel_formula() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let (w, h) = (97, 61);
-        let data: Vec<u8> = (0..w * h * 3).map(|_| rng.random_range(0..=255u8)).collect();
-        let img = RgbView {
-            width: w,
-            height: h,
-            data: &data,
-        };
-        let table = BilinearTable::new();
-        for trial in 0..40 {
-            let n = [8, 33, 128, 600][trial % 4];
-            let angle: f64 = rng.random_range(-3.2..3.2);
-            let step: f64 = rng.random_range(0.05..1.7) * 64.0 / n as f64;
-            let map = Affine {
-                origin: [rng.random_range(-40.0..130.0), rng.random_range(-40.0..100.0)],
-                du: [step * angle.cos(), step * angle.sin()],
-                dv: [-step * angle.sin(), step * angle.cos()],
+        // a face-sized image, and one too small for any 8-byte load of the vector mix
+        for (w, h, trials) in [(97usize, 61usize, 40), (3, 2, 12)] {
+            let data: Vec<u8> = (0..w * h * 3).map(|_| rng.random_range(0..=255u8)).collect();
+            let img = RgbView {
+                width: w,
+                height: h,
+                data: &data,
             };
-            for border in [Border::Zero, Border::Replicate] {
-                let values = ValueMap {
-                    scale: 1.0 / 127.5,
-                    offset: -1.0,
+            let table = BilinearTable::new();
+            for trial in 0..trials {
+                let n = [8, 33, 128, 600, 256, 192][trial % 6];
+                let angle: f64 = rng.random_range(-3.2..3.2);
+                let step: f64 = rng.random_range(0.05..1.7) * 64.0 / n as f64 * w as f64 / 97.0;
+                let map = Affine {
+                    origin: [
+                        rng.random_range(-40.0..w as f64 + 33.0),
+                        rng.random_range(-40.0..h as f64 + 39.0),
+                    ],
+                    du: [step * angle.cos(), step * angle.sin()],
+                    dv: [-step * angle.sin(), step * angle.cos()],
                 };
-                let want = reference_warp(&img, &map, n, border, values);
-                let mut got = vec![f32::NAN; n * n * 3];
-                warp_to_tensor(&img, &map, n, border, values, &table, &mut got);
-                assert!(
-                    want.iter().zip(&got).all(|(a, b)| a.to_bits() == b.to_bits()),
-                    "trial {trial}, n {n}, {border:?}"
-                );
+                for border in [Border::Zero, Border::Replicate] {
+                    for values in [ValueMap::SIGNED, ValueMap::UNIT] {
+                        let want = reference_warp(&img, &map, n, border, values);
+                        let mut got = vec![f32::NAN; n * n * 3];
+                        warp_to_tensor(&img, &map, n, border, values, &table, &mut got);
+                        assert!(
+                            want.iter().zip(&got).all(|(a, b)| a.to_bits() == b.to_bits()),
+                            "{w}x{h}, trial {trial}, n {n}, {border:?}"
+                        );
+                    }
+                }
             }
+        }
+    }
+
+    /// `fixed` is `rint(s * 32)` as an integer: halves to even, negatives, the clamp.
+    #[test]
+    fn fixed_is_the_rounded_position_in_32nds() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut values: Vec<f64> = (0..20_000).map(|_| rng.random_range(-5000.0..5000.0)).collect();
+        values.extend((-200..200).map(|k| k as f64 / 64.0));
+        values.extend([1e13, -1e13, 3.4e38, -3.4e38, 0.0, -0.0]);
+        for s in values {
+            let want = rint((s * TAB as f64).clamp(-COORD_LIMIT, COORD_LIMIT)) as i64;
+            assert_eq!(fixed(s), want, "{s}");
         }
     }
 
