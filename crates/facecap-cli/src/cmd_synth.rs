@@ -5,9 +5,11 @@
 //!    our detector and ERT.
 //! 2. The default rig's 68 landmark points are posed by a known sequence of
 //!    blendshape weights and head rotations; the pose of frame 0 is fitted to the
-//!    photo by PnP (default camera). Each frame's target landmarks are the photo's
-//!    landmarks plus the image motion of the rig points: `u_i(t) = p_i +
-//!    pi(pose_t, X_i(w_t)) - pi(pose_0, X_i(0))`.
+//!    photo by PnP (default camera). The photo's landmarks become a 3D face: each is
+//!    lifted onto its camera ray at the depth of the rig's neutral point, `Y_i =
+//!    X_i(0) + d_i` with `pi(pose_0, Y_i) = p_i`, so the subject's own shape (the
+//!    offsets `d_i`, in model axes) turns with the head as a real face does. Each
+//!    frame's target landmarks are `u_i(t) = pi(pose_0 R_t, X_i(w_t) + d_i)`.
 //! 3. The photo is warped piecewise-affinely (Delaunay over the landmarks plus fixed
 //!    anchors on an ellipse around the face and on the image border) so the landmarks
 //!    land on the targets; the eyes close as real eyes do (the eyeball stays, the lids
@@ -179,9 +181,16 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
     let neutral = rig_points(&vec![0.0; rig.targets.len()], &rig, &map);
     let (pose0, _) = solve_pnp(&neutral, &lms.points, &k, None, &PnpParams::default())?;
     let centre = neutral.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / neutral.len() as f64;
-    let base_proj: Vec<Point2<f64>> = neutral
+    // The subject's shape in model axes: the photo's landmark on its camera ray, at the
+    // camera depth of the rig's neutral point, minus that point.
+    let identity: Vec<Vector3<f64>> = neutral
         .iter()
-        .map(|p| pose0.project(&k, p).unwrap_or(Point2::new(f64::NAN, f64::NAN)))
+        .zip(&lms.points)
+        .map(|(x, p)| {
+            let z = pose0.transform(x).z;
+            let on_ray = Point3::new((p.x - k.cx) / k.fx * z, (p.y - k.cy) / k.fy * z, z);
+            pose0.0.inverse_transform_point(&on_ray) - x
+        })
         .collect();
 
     // Anchors: an ellipse around the face and the image border stay fixed.
@@ -233,13 +242,10 @@ pub fn make_synth(photo: &Path, out: &Path, frames: u32, fps: u32, seed: u64) ->
         let mut rest = src_pts.clone();
         for i in 0..NUM_LANDMARKS {
             let image_of = |x: &Point3<f64>| {
-                let moved = Point3::from(r_delta * (x.coords - centre) + centre);
+                let moved = Point3::from(r_delta * (x.coords + identity[i] - centre) + centre);
                 let p = ModelToCamera::project(&pose0, &k, &moved)
                     .ok_or_else(|| anyhow::anyhow!("synthetic head left the camera's view at frame {f}"))?;
-                anyhow::Ok((
-                    lms.points[i].x + p.x - base_proj[i].x,
-                    lms.points[i].y + p.y - base_proj[i].y,
-                ))
+                anyhow::Ok((p.x, p.y))
             };
             dst[i] = image_of(&pts[i])?;
             rest[i] = image_of(&neutral[i])?;

@@ -2,7 +2,8 @@
 //!
 //!     cargo run --release -p facecap-mesh --example profile_models [reps] [--layers]
 //!
-//! `--layers` also prints every step of the plan with its shapes, time and MAC rate.
+//! `--layers` also prints every step of the plan with its shapes, time and MAC rate;
+//! `--model PATH` profiles that TFLite file instead of the two cached models.
 use facecap_mesh::tflite::Interpreter;
 
 /// CPU time of this thread in seconds (Linux `/proc/thread-self/schedstat`), so that
@@ -16,10 +17,18 @@ fn main() -> facecap_mesh::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let layers = args.iter().any(|a| a == "--layers");
     let reps: usize = args.iter().find_map(|a| a.parse().ok()).unwrap_or(50);
-    for name in [facecap_mesh::FACE_LANDMARKS_MODEL, facecap_mesh::FACE_DETECTOR_MODEL] {
-        let Some(path) = facecap_core::paths::model_file_or_skip("profile_models", name) else {
-            continue;
-        };
+    let given = args.iter().position(|a| a == "--model").and_then(|i| args.get(i + 1));
+    let paths: Vec<(String, std::path::PathBuf)> = match given {
+        Some(p) => vec![(p.clone(), p.into())],
+        None => [facecap_mesh::FACE_LANDMARKS_MODEL, facecap_mesh::FACE_DETECTOR_MODEL]
+            .into_iter()
+            .filter_map(|name| {
+                let path = facecap_core::paths::model_file_or_skip("profile_models", name)?;
+                Some((name.to_string(), path))
+            })
+            .collect(),
+    };
+    for (name, path) in paths {
         let it = Interpreter::from_file(&path)?;
         let mut ws = it.workspace();
         for (i, v) in it.input_mut(&mut ws, 0)?.iter_mut().enumerate() {
