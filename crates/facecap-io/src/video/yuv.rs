@@ -109,6 +109,69 @@ impl YuvToRgb {
         ]
     }
 
+    /// 4:4:4 planes to interleaved RGB: [`YuvToRgb::pixel`] on every pixel, 16 pixels at
+    /// a time in vector registers where AVX2 is available (integer arithmetic, so the same
+    /// bytes; unit test `vector_444_equals_the_pixel_formula`).
+    fn convert_444(&self, y: &[u8], cb: &[u8], cr: &[u8], out: &mut [u8]) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = pulp::x86::V3::try_new() {
+            struct Run<'a> {
+                conv: &'a YuvToRgb,
+                planes: [&'a [u8]; 3],
+                out: &'a mut [u8],
+            }
+            impl pulp::WithSimd for Run<'_> {
+                type Output = ();
+                #[inline(always)]
+                fn with_simd<S: pulp::Simd>(self, _simd: S) {
+                    let [y, cb, cr] = self.planes;
+                    self.conv.convert_444_blocks(y, cb, cr, self.out);
+                }
+            }
+            pulp::Simd::vectorize(
+                v3,
+                Run {
+                    conv: self,
+                    planes: [y, cb, cr],
+                    out,
+                },
+            );
+            return;
+        }
+        self.convert_444_blocks(y, cb, cr, out);
+    }
+
+    /// [`YuvToRgb::convert_444`]'s body: blocks of 16 pixels as plain arrays (which the
+    /// compiler keeps in vector registers when built for AVX2), then the remainder.
+    #[inline(always)]
+    fn convert_444_blocks(&self, y: &[u8], cb: &[u8], cr: &[u8], out: &mut [u8]) {
+        const B: usize = 16;
+        let n = y.len().min(cb.len()).min(cr.len()).min(out.len() / 3);
+        let whole = n / B * B;
+        let blocks = y[..whole]
+            .chunks_exact(B)
+            .zip(cb[..whole].chunks_exact(B))
+            .zip(cr[..whole].chunks_exact(B))
+            .zip(out[..3 * whole].chunks_exact_mut(3 * B));
+        for (((ys, us), vs), o) in blocks {
+            let (mut r, mut g, mut b) = ([0u8; B], [0u8; B], [0u8; B]);
+            for k in 0..B {
+                let yy = (i32::from(ys[k]) - self.y_off) * self.y_mul + FIX_HALF;
+                let (u, v) = (i32::from(us[k]) - 128, i32::from(vs[k]) - 128);
+                r[k] = ((yy + self.r_cr * v) >> FIX_SHIFT).clamp(0, 255) as u8;
+                g[k] = ((yy - self.g_cb * u - self.g_cr * v) >> FIX_SHIFT).clamp(0, 255) as u8;
+                b[k] = ((yy + self.b_cb * u) >> FIX_SHIFT).clamp(0, 255) as u8;
+            }
+            for (k, px) in o.chunks_exact_mut(3).enumerate() {
+                px.copy_from_slice(&[r[k], g[k], b[k]]);
+            }
+        }
+        let rest = y[whole..n].iter().zip(&cb[whole..n]).zip(&cr[whole..n]);
+        for (((yv, u), v), o) in rest.zip(out[3 * whole..3 * n].chunks_exact_mut(3)) {
+            o.copy_from_slice(&self.pixel(*yv, *u, *v));
+        }
+    }
+
     /// Converts planar Y'CbCr to RGB. `y` is `width*height`; `cb`/`cr` are
     /// `ceil(width/sx) * ceil(height/sy)` with row stride `ceil(width/sx)`.
     /// `out` is resized only when its size differs.
@@ -134,9 +197,7 @@ impl YuvToRgb {
         let out = out.as_mut();
         if (sx, sy) == (1, 1) && cb.len() >= y.len() && cr.len() >= y.len() {
             // 4:4:4: one chroma sample per pixel, no index arithmetic
-            for (((o, yv), u), v) in out.chunks_exact_mut(3).zip(y).zip(cb).zip(cr) {
-                o.copy_from_slice(&self.pixel(*yv, *u, *v));
-            }
+            self.convert_444(y, cb, cr, out);
             return;
         }
         let chroma_420 = cw * (height as usize).div_ceil(2);
@@ -187,6 +248,37 @@ mod tests {
         let c = YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Limited);
         let [r, g, b] = c.pixel(81, 90, 240);
         assert!(r >= 253 && g <= 2 && b <= 2, "{r} {g} {b}");
+    }
+
+    /// The vector 4:4:4 conversion gives `pixel`'s bytes: every (Y, Cb, Cr) corner and
+    /// random planes of lengths around the block size, both matrices and ranges.
+    #[test]
+    fn vector_444_equals_the_pixel_formula() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(444);
+        for matrix in [ColorMatrix::Bt601, ColorMatrix::Bt709] {
+            for range in [ColorRange::Limited, ColorRange::Full] {
+                let c = YuvToRgb::new(matrix, range);
+                for n in [0usize, 1, 15, 16, 17, 31, 33, 480 * 7 + 5] {
+                    let mut planes: [Vec<u8>; 3] =
+                        std::array::from_fn(|_| (0..n).map(|_| rng.random::<u8>()).collect());
+                    for (i, corner) in [0u8, 255].iter().enumerate().take(n.min(2)) {
+                        for p in planes.iter_mut() {
+                            p[i] = *corner;
+                        }
+                    }
+                    let mut got = vec![7u8; 3 * n];
+                    c.convert_444(&planes[0], &planes[1], &planes[2], &mut got);
+                    for (k, px) in got.chunks_exact(3).enumerate() {
+                        assert_eq!(
+                            px,
+                            c.pixel(planes[0][k], planes[1][k], planes[2][k]),
+                            "{matrix:?} {range:?} n {n} k {k}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]
