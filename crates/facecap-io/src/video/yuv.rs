@@ -141,8 +141,9 @@ impl YuvToRgb {
         self.convert_444_blocks(y, cb, cr, out);
     }
 
-    /// [`YuvToRgb::convert_444`]'s body: blocks of 16 pixels as plain arrays (which the
-    /// compiler keeps in vector registers when built for AVX2), then the remainder.
+    /// [`YuvToRgb::convert_444`]'s body: [`YuvToRgb::pixel`] on blocks of 16 pixels into
+    /// three plain arrays (which the compiler keeps in vector registers when built for
+    /// AVX2), interleaved afterwards, then on the remainder.
     #[inline(always)]
     fn convert_444_blocks(&self, y: &[u8], cb: &[u8], cr: &[u8], out: &mut [u8]) {
         const B: usize = 16;
@@ -156,11 +157,7 @@ impl YuvToRgb {
         for (((ys, us), vs), o) in blocks {
             let (mut r, mut g, mut b) = ([0u8; B], [0u8; B], [0u8; B]);
             for k in 0..B {
-                let yy = (i32::from(ys[k]) - self.y_off) * self.y_mul + FIX_HALF;
-                let (u, v) = (i32::from(us[k]) - 128, i32::from(vs[k]) - 128);
-                r[k] = ((yy + self.r_cr * v) >> FIX_SHIFT).clamp(0, 255) as u8;
-                g[k] = ((yy - self.g_cb * u - self.g_cr * v) >> FIX_SHIFT).clamp(0, 255) as u8;
-                b[k] = ((yy + self.b_cb * u) >> FIX_SHIFT).clamp(0, 255) as u8;
+                [r[k], g[k], b[k]] = self.pixel(ys[k], us[k], vs[k]);
             }
             for (k, px) in o.chunks_exact_mut(3).enumerate() {
                 px.copy_from_slice(&[r[k], g[k], b[k]]);
