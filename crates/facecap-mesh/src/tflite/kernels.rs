@@ -491,13 +491,19 @@ mod v3 {
                 let mut ox = 0;
                 if ny == 3 {
                     let b = load(&bias[cb..cb + 8]);
-                    let wv: [[f32x8; 3]; 3] = std::array::from_fn(|ky| {
-                        std::array::from_fn(|kx| {
+                    // Plain loops, not `std::array::from_fn`: its closures do not inherit
+                    // the AVX2 target features and ran out of line, through the stack.
+                    let mut wv = [[b; 3]; 3];
+                    for (ky, wrow) in wv.iter_mut().enumerate() {
+                        for (kx, wk) in wrow.iter_mut().enumerate() {
                             let w = (ky * 3 + kx) * c + cb;
-                            load(&filter[w..w + 8])
-                        })
-                    });
-                    let rows: [&[f32]; 3] = std::array::from_fn(|r| &input[ty[r].1 * row_len..(ty[r].1 + 1) * row_len]);
+                            *wk = load(&filter[w..w + 8]);
+                        }
+                    }
+                    let mut rows: [&[f32]; 3] = [&[]; 3];
+                    for (row, &(_, iy)) in rows.iter_mut().zip(&ty) {
+                        *row = &input[iy * row_len..(iy + 1) * row_len];
+                    }
                     while ox < lo {
                         store8(
                             out,
