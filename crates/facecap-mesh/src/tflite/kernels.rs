@@ -493,17 +493,15 @@ mod v3 {
                     let b = load(&bias[cb..cb + 8]);
                     // Plain loops, not `std::array::from_fn`: its closures do not inherit
                     // the AVX2 target features and ran out of line, through the stack.
-                    let mut wv = [[b; 3]; 3];
+                    let mut wv = [[simd.splat_f32x8(0.0); 3]; 3];
                     for (ky, wrow) in wv.iter_mut().enumerate() {
                         for (kx, wk) in wrow.iter_mut().enumerate() {
                             let w = (ky * 3 + kx) * c + cb;
                             *wk = load(&filter[w..w + 8]);
                         }
                     }
-                    let mut rows: [&[f32]; 3] = [&[]; 3];
-                    for (row, &(_, iy)) in rows.iter_mut().zip(&ty) {
-                        *row = &input[iy * row_len..(iy + 1) * row_len];
-                    }
+                    // All three taps inside: input rows `ty[0].1..ty[0].1 + 3`.
+                    let rows = rows_of::<3>(input, ty[0].1 * row_len, row_len, row_len);
                     while ox < lo {
                         store8(
                             out,
