@@ -216,9 +216,10 @@ fn mesh_landmarks_csv_of_a_sequence_matches_mediapipe_video_mode() {
 
 /// The video file itself through facecap's decoder: its RGB is converted from the
 /// stream's Y'CbCr by facecap (BT.709 for this clip, docs/video.md), about 1.2 grey levels
-/// from ffmpeg's `rgb24` that MediaPipe was given, which moves the points by ~0.3 px mean
-/// (iris centres ~0.5 px) on the first frame. Checked: one row per frame with a face on
-/// each, and the mean and largest distance goals on the stored frames.
+/// from ffmpeg's `rgb24` that MediaPipe was given, which moves the points by ~0.15 px mean
+/// (iris centres 0.27 / 0.14 px) on the first frame (0.30 px and 0.54 / 0.43 px while
+/// ffmpeg upsampled the chroma to 4:4:4). Checked: one row per frame with a face on each,
+/// and the mean and largest distance goals on the stored frames.
 #[test]
 fn mesh_landmarks_csv_of_a_video_file_is_close_to_mediapipe() {
     let test = "mesh_landmarks_csv_of_a_video_file_is_close_to_mediapipe";

@@ -141,6 +141,40 @@ impl YuvToRgb {
         self.convert_444_blocks(y, cb, cr, out);
     }
 
+    /// 4:2:0 planes to interleaved RGB ([`YuvToRgb::convert_420_rows`]), under the same
+    /// AVX2 dispatch as [`YuvToRgb::convert_444`] (same bytes as the plain formula: unit
+    /// test `vector_420_equals_the_pixel_formula`).
+    fn convert_420(&self, y: &[u8], cb: &[u8], cr: &[u8], size: (usize, usize), out: &mut [u8]) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = pulp::x86::V3::try_new() {
+            struct Run<'a> {
+                conv: &'a YuvToRgb,
+                planes: [&'a [u8]; 3],
+                size: (usize, usize),
+                out: &'a mut [u8],
+            }
+            impl pulp::WithSimd for Run<'_> {
+                type Output = ();
+                #[inline(always)]
+                fn with_simd<S: pulp::Simd>(self, _simd: S) {
+                    let [y, cb, cr] = self.planes;
+                    self.conv.convert_420_rows(y, cb, cr, self.size, self.out);
+                }
+            }
+            pulp::Simd::vectorize(
+                v3,
+                Run {
+                    conv: self,
+                    planes: [y, cb, cr],
+                    size,
+                    out,
+                },
+            );
+            return;
+        }
+        self.convert_420_rows(y, cb, cr, size, out);
+    }
+
     /// [`YuvToRgb::convert_444`]'s body: [`YuvToRgb::pixel`] on blocks of 16 pixels into
     /// three plain arrays (which the compiler keeps in vector registers when built for
     /// AVX2), interleaved afterwards, then on the remainder.
@@ -166,6 +200,39 @@ impl YuvToRgb {
         let rest = y[whole..n].iter().zip(&cb[whole..n]).zip(&cr[whole..n]);
         for (((yv, u), v), o) in rest.zip(out[3 * whole..3 * n].chunks_exact_mut(3)) {
             o.copy_from_slice(&self.pixel(*yv, *u, *v));
+        }
+    }
+
+    /// 4:2:0 planes to interleaved RGB, each chroma sample used for the 2x2 pixels it
+    /// covers (nearest, as [`YuvToRgb::convert_into`] documents): each row in blocks of
+    /// up to 64 pixels, the chroma doubled into two stack arrays, then
+    /// [`YuvToRgb::convert_444_blocks`] (vectorised under the caller's SIMD dispatch).
+    /// Sizes are checked by the caller: `y` is `w * h`, `cb`/`cr` hold
+    /// `ceil(w/2) * ceil(h/2)` samples.
+    #[inline(always)]
+    fn convert_420_rows(&self, y: &[u8], cb: &[u8], cr: &[u8], (w, h): (usize, usize), out: &mut [u8]) {
+        const B: usize = 64;
+        let cw = w.div_ceil(2);
+        for row in 0..h {
+            let c0 = (row / 2) * cw;
+            let (cb_row, cr_row) = (&cb[c0..c0 + cw], &cr[c0..c0 + cw]);
+            let yrow = &y[row * w..][..w];
+            let orow = &mut out[3 * row * w..][..3 * w];
+            let mut x = 0;
+            while x < w {
+                let n = (w - x).min(B);
+                let i0 = x / 2;
+                let pairs = n.div_ceil(2);
+                let (mut ub, mut ur) = ([0u8; B], [0u8; B]);
+                for (k, (u, v)) in cb_row[i0..i0 + pairs].iter().zip(&cr_row[i0..i0 + pairs]).enumerate() {
+                    ub[2 * k] = *u;
+                    ub[2 * k + 1] = *u;
+                    ur[2 * k] = *v;
+                    ur[2 * k + 1] = *v;
+                }
+                self.convert_444_blocks(&yrow[x..x + n], &ub[..n], &ur[..n], &mut orow[3 * x..3 * (x + n)]);
+                x += n;
+            }
         }
     }
 
@@ -200,19 +267,7 @@ impl YuvToRgb {
         let chroma_420 = cw * (height as usize).div_ceil(2);
         if (sx, sy) == (2, 2) && cb.len() >= chroma_420 && cr.len() >= chroma_420 {
             // 4:2:0: each chroma sample covers a pair of pixels on two rows
-            for (row, (yrow, orow)) in y.chunks_exact(w).zip(out.chunks_exact_mut(3 * w)).enumerate() {
-                let crow = (row >> 1) * cw;
-                let (cbr, crr) = (&cb[crow..crow + cw], &cr[crow..crow + cw]);
-                let pairs = yrow.chunks_exact(2).zip(orow.chunks_exact_mut(6));
-                for (((yv, o), u), v) in pairs.zip(cbr).zip(crr) {
-                    o[..3].copy_from_slice(&self.pixel(yv[0], *u, *v));
-                    o[3..].copy_from_slice(&self.pixel(yv[1], *u, *v));
-                }
-                if w % 2 == 1 {
-                    let (u, v) = (cbr[cw - 1], crr[cw - 1]);
-                    orow[3 * (w - 1)..].copy_from_slice(&self.pixel(yrow[w - 1], u, v));
-                }
-            }
+            self.convert_420(y, cb, cr, (w, height as usize), out);
             return;
         }
         for (row, (yrow, orow)) in y.chunks_exact(w).zip(out.chunks_exact_mut(3 * w)).enumerate() {
@@ -273,6 +328,35 @@ mod tests {
                             "{matrix:?} {range:?} n {n} k {k}"
                         );
                     }
+                }
+            }
+        }
+    }
+
+    /// The vector 4:2:0 conversion gives `pixel` with the chroma sample covering each
+    /// pixel, on odd and even sizes around the 64-pixel block.
+    #[test]
+    fn vector_420_equals_the_pixel_formula() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(420);
+        let c = YuvToRgb::new(ColorMatrix::Bt709, ColorRange::Limited);
+        for (w, h) in [(1usize, 1usize), (2, 2), (3, 5), (64, 3), (65, 4), (130, 7), (480, 6)] {
+            let cw = w.div_ceil(2);
+            let y: Vec<u8> = (0..w * h).map(|_| rng.random()).collect();
+            let cb: Vec<u8> = (0..cw * h.div_ceil(2)).map(|_| rng.random()).collect();
+            let cr: Vec<u8> = (0..cw * h.div_ceil(2)).map(|_| rng.random()).collect();
+            let mut got = RgbImage::new(1, 1);
+            c.convert_into(&y, &cb, &cr, w as u32, h as u32, 2, 2, &mut got);
+            assert_eq!(got.dimensions(), (w as u32, h as u32));
+            for row in 0..h {
+                for col in 0..w {
+                    let ci = (row / 2) * cw + col / 2;
+                    let want = c.pixel(y[row * w + col], cb[ci], cr[ci]);
+                    assert_eq!(
+                        got.get_pixel(col as u32, row as u32).0,
+                        want,
+                        "{w}x{h} at ({col}, {row})"
+                    );
                 }
             }
         }
