@@ -113,66 +113,49 @@ impl YuvToRgb {
     /// a time in vector registers where AVX2 is available (integer arithmetic, so the same
     /// bytes; unit test `vector_444_equals_the_pixel_formula`).
     fn convert_444(&self, y: &[u8], cb: &[u8], cr: &[u8], out: &mut [u8]) {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(v3) = pulp::x86::V3::try_new() {
-            struct Run<'a> {
-                conv: &'a YuvToRgb,
-                planes: [&'a [u8]; 3],
-                out: &'a mut [u8],
-            }
-            impl pulp::WithSimd for Run<'_> {
-                type Output = ();
-                #[inline(always)]
-                fn with_simd<S: pulp::Simd>(self, _simd: S) {
-                    let [y, cb, cr] = self.planes;
-                    self.conv.convert_444_blocks(y, cb, cr, self.out);
-                }
-            }
-            pulp::Simd::vectorize(
-                v3,
-                Run {
-                    conv: self,
-                    planes: [y, cb, cr],
-                    out,
-                },
-            );
-            return;
-        }
-        self.convert_444_blocks(y, cb, cr, out);
+        self.dispatch(y, cb, cr, None, out);
     }
 
-    /// 4:2:0 planes to interleaved RGB ([`YuvToRgb::convert_420_rows`]), under the same
-    /// AVX2 dispatch as [`YuvToRgb::convert_444`] (same bytes as the plain formula: unit
+    /// 4:2:0 planes of a `size` image to interleaved RGB ([`YuvToRgb::convert_420_rows`]),
+    /// vectorised like [`YuvToRgb::convert_444`] (same bytes as the plain formula: unit
     /// test `vector_420_equals_the_pixel_formula`).
     fn convert_420(&self, y: &[u8], cb: &[u8], cr: &[u8], size: (usize, usize), out: &mut [u8]) {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(v3) = pulp::x86::V3::try_new() {
-            struct Run<'a> {
-                conv: &'a YuvToRgb,
-                planes: [&'a [u8]; 3],
-                size: (usize, usize),
-                out: &'a mut [u8],
-            }
-            impl pulp::WithSimd for Run<'_> {
-                type Output = ();
-                #[inline(always)]
-                fn with_simd<S: pulp::Simd>(self, _simd: S) {
-                    let [y, cb, cr] = self.planes;
-                    self.conv.convert_420_rows(y, cb, cr, self.size, self.out);
+        self.dispatch(y, cb, cr, Some(size), out);
+    }
+
+    /// Runs [`YuvToRgb::convert_444_blocks`] (`half` = `None`) or
+    /// [`YuvToRgb::convert_420_rows`] (`half` = the image size) compiled for AVX2 where
+    /// the CPU has it.
+    fn dispatch(&self, y: &[u8], cb: &[u8], cr: &[u8], half: Option<(usize, usize)>, out: &mut [u8]) {
+        struct Run<'a> {
+            conv: &'a YuvToRgb,
+            planes: [&'a [u8]; 3],
+            half: Option<(usize, usize)>,
+            out: &'a mut [u8],
+        }
+        impl pulp::WithSimd for Run<'_> {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: pulp::Simd>(self, _simd: S) {
+                let [y, cb, cr] = self.planes;
+                match self.half {
+                    None => self.conv.convert_444_blocks(y, cb, cr, self.out),
+                    Some(size) => self.conv.convert_420_rows(y, cb, cr, size, self.out),
                 }
             }
-            pulp::Simd::vectorize(
-                v3,
-                Run {
-                    conv: self,
-                    planes: [y, cb, cr],
-                    size,
-                    out,
-                },
-            );
+        }
+        let run = Run {
+            conv: self,
+            planes: [y, cb, cr],
+            half,
+            out,
+        };
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = pulp::x86::V3::try_new() {
+            pulp::Simd::vectorize(v3, run);
             return;
         }
-        self.convert_420_rows(y, cb, cr, size, out);
+        pulp::WithSimd::with_simd(run, pulp::Scalar::new());
     }
 
     /// [`YuvToRgb::convert_444`]'s body: [`YuvToRgb::pixel`] on blocks of 16 pixels into
