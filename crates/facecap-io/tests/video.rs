@@ -218,6 +218,62 @@ fn luma_modes_and_rgb_on_shared_clip() {
     assert!(diff < 2.0, "mean |RGB - ffmpeg rgb24| = {diff}");
 }
 
+/// A full-range (`yuvj420p`, as MJPEG and many phones write) clip keeps its codes:
+/// grey equals ffmpeg's own `-pix_fmt gray` bit for bit and RGB its `rgb24` (both made
+/// by ffmpeg from the full-range planes), in grey-only and colour mode.
+#[test]
+fn full_range_video_keeps_its_codes() {
+    let test = "full_range_video_keeps_its_codes";
+    let Some(ffmpeg) = ffmpeg_or_skip(test) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("full.avi");
+    let made = std::process::Command::new(&ffmpeg)
+        .args([
+            "-nostdin",
+            "-v",
+            "error",
+            "-f",
+            "lavfi",
+            "-i",
+            "testsrc=size=64x48:rate=5",
+        ])
+        .args(["-frames:v", "2", "-pix_fmt", "yuvj420p", "-c:v", "mjpeg", "-q:v", "2"])
+        .arg(&path)
+        .stdin(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let gray = ffmpeg_raw(&ffmpeg, &path, "gray", 1);
+    let rgb_ref = ffmpeg_raw(&ffmpeg, &path, "rgb24", 1);
+    assert_eq!(
+        (gray.iter().min(), gray.iter().max()),
+        (Some(&0), Some(&255)),
+        "a full-range test clip"
+    );
+    for rgb in [false, true] {
+        let mut src = open_source(
+            &path,
+            &SourceOptions {
+                rgb,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let f = src.next_frame().unwrap().unwrap();
+        assert_eq!(f.gray.as_raw()[..], gray[..], "grey, rgb {rgb}");
+        if let Some(img) = f.rgb {
+            let diff: f64 = img
+                .as_raw()
+                .iter()
+                .zip(&rgb_ref)
+                .map(|(a, b)| f64::from(a.abs_diff(*b)))
+                .sum::<f64>()
+                / rgb_ref.len() as f64;
+            assert!(diff < 2.0, "mean |RGB - ffmpeg rgb24| = {diff}");
+        }
+    }
+}
+
 /// Decodes a whole source in colour (index, timestamp, RGB bytes).
 fn decode_rgb(path: &Path, opts: &SourceOptions) -> Vec<(u64, f64, Vec<u8>)> {
     let mut src = open_source(path, opts).unwrap();

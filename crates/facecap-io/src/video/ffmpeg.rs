@@ -4,23 +4,26 @@
 //!
 //! ```text
 //! ffmpeg -nostdin -hide_banner -nostats -loglevel level+info [-xerror] [-threads N]
-//!        -copyts -i FILE -map 0:V:0 -vf [format=pix_fmts=yuv420p|yuv444p,]showinfo=checksum=0
+//!        -copyts -i FILE -map 0:V:0 -vf [format=pix_fmts=FORMATS,]showinfo=checksum=0
 //!        [,select=EXPR][,scale=W:H:flags=bilinear] -fps_mode passthrough
 //!        -f rawvideo [-pix_fmt yuv420p|yuv444p] pipe:1          (stdin = /dev/null)
 //! ```
 //!
 //! * `-nostdin` + a null stdin: without them ffmpeg polls the terminal and decodes ~10x slower.
-//! * `-pix_fmt yuv420p` (grey only): the grey image is the luma plane copied straight from
-//!   the pipe. RGB requested: `format=pix_fmts=yuv420p|yuv444p` before `showinfo` keeps a
-//!   4:2:0 source in 4:2:0 (half the bytes of 4:4:4 through the pipe and no conversion in
-//!   ffmpeg: a whole decode of a 480x480 H.264 clip took 0.77 s instead of 1.34 s for
-//!   1008 frames on one core), turns anything else into 4:4:4, and `showinfo` reports
-//!   which (`fmt:`); RGB is converted here ([`super::yuv`]; a 4:2:0 chroma sample
-//!   serves the 2x2 pixels it covers, as ffmpeg's own `rgb24` conversion does: on 30
-//!   frames each of liveportrait_d6 / d18, mean |RGB - ffmpeg rgb24| 1.21 / 1.00, max 3,
-//!   against 1.22 / 1.02, max 5 / 13 through ffmpeg's 4:4:4; a bilinear chroma was
-//!   further off, 1.25 / 1.05, max 6 / 22). With scaling, `-pix_fmt yuv444p`. The grey
-//!   image is the luma plane in every case, identical whether or not RGB is requested.
+//! * Without scaling, `format=pix_fmts=yuv420p|yuvj420p` (grey only) or
+//!   `yuv420p|yuvj420p|yuv444p|yuvj444p` (RGB requested) before `showinfo`: ffmpeg keeps
+//!   a 4:2:0 source in 4:2:0 (for RGB: half the bytes of 4:4:4 through the pipe and no
+//!   conversion in ffmpeg; a whole decode of a 480x480 H.264 clip took 0.77 s instead of
+//!   1.34 s for 1008 frames on one core), turns other sources into the nearest listed
+//!   format, keeps full-range (`yuvj`) codes as they are (`-pix_fmt yuv420p` squeezed them
+//!   into 16-235 while the stream said full range), and `showinfo` reports the format of
+//!   every frame (`fmt:`). With scaling, `-pix_fmt yuv420p` or `yuv444p`.
+//! * The grey image is the luma plane copied straight from the pipe; RGB is converted
+//!   here ([`super::yuv`]) from the same planes, so grey is identical whether or not RGB
+//!   is requested. A 4:2:0 chroma sample serves the 2x2 pixels it covers, as ffmpeg's own
+//!   `rgb24` conversion does: on 30 frames each of liveportrait_d6 / d18, mean |RGB -
+//!   ffmpeg rgb24| 1.21 / 1.00, max 3, against 1.22 / 1.02, max 5 / 13 through ffmpeg's
+//!   4:4:4 (a bilinear chroma was further off: 1.25 / 1.05, max 6 / 22).
 //! * `showinfo` prints, for every frame and before its bytes reach the pipe, its index,
 //!   `pts` and size on stderr; a reader thread parses those lines, so each frame gets the
 //!   exact presentation timestamp `pts * time_base` (`-copyts`: no shift to zero, i.e.
@@ -221,8 +224,9 @@ pub struct ShowinfoFrame {
     pub height: u32,
     /// Whether it is a keyframe (`iskey:1`; `false` when the line does not say).
     pub key: bool,
-    /// Chroma subsampling of the frame's pixel format (`fmt:`): 2 for `yuv420p`, 1 for
-    /// `yuv444p`, `None` for any other format or when the line does not say.
+    /// Chroma subsampling of the frame's pixel format (`fmt:`): 2 for `yuv420p` and
+    /// `yuvj420p`, 1 for `yuv444p` and `yuvj444p`, `None` for any other format or when the
+    /// line does not say.
     pub chroma_sub: Option<u32>,
 }
 
@@ -299,8 +303,8 @@ pub fn parse_showinfo_frame(line: &str) -> Option<ShowinfoFrame> {
         height: h.parse().ok()?,
         key: field_after(body, " iskey:").is_some_and(|t| leading_token(t) == "1"),
         chroma_sub: field_after(body, " fmt:").and_then(|t| match leading_token(t) {
-            "yuv420p" => Some(2),
-            "yuv444p" => Some(1),
+            "yuv420p" | "yuvj420p" => Some(2),
+            "yuv444p" | "yuvj444p" => Some(1),
             _ => None,
         }),
     })
@@ -474,15 +478,23 @@ impl FfmpegSource {
         opts.validate()?;
         std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
         let ffmpeg = locate_ffmpeg(opts.ffmpeg.as_deref())?;
-        // Colour without scaling: 4:2:0 sources stay 4:2:0 (half the bytes through the
-        // pipe, no conversion in ffmpeg) and anything else becomes 4:4:4; `showinfo`
-        // after the format reports which (`fmt:`), and the chroma is upsampled here.
-        let negotiated = opts.rgb && opts.scale.is_none();
+        // Without scaling, ffmpeg picks the nearest of a few planar formats: 4:2:0 sources
+        // stay 4:2:0 (for colour: half the bytes through the pipe, no conversion in
+        // ffmpeg; other sources become 4:4:4), and full-range (`yuvj`) sources keep their
+        // codes (`-pix_fmt yuv420p` squeezed them into 16-235 while the stream's range
+        // said full). `showinfo` after the format reports which (`fmt:`).
+        let negotiated = opts.scale.is_none();
+        let formats = if opts.rgb {
+            "yuv420p|yuvj420p|yuv444p|yuvj444p"
+        } else {
+            "yuv420p|yuvj420p"
+        };
         let pix_fmt = if opts.rgb { "yuv444p" } else { "yuv420p" };
-        // showinfo first: it reports every decoded frame (so indices stay exact when
-        // `select` drops some), then the selection, then the scaling of what is left
+        // showinfo first (after the lossless format choice): it reports every decoded
+        // frame (so indices stay exact when `select` drops some), then the selection,
+        // then the scaling of what is left
         let mut filters = if negotiated {
-            "format=pix_fmts=yuv420p|yuv444p,showinfo=checksum=0".to_string()
+            format!("format=pix_fmts={formats},showinfo=checksum=0")
         } else {
             "showinfo=checksum=0".to_string()
         };
@@ -641,7 +653,7 @@ impl FfmpegSource {
             match first.chroma_sub {
                 Some(sub) => src.chroma_sub = sub,
                 None => {
-                    let reason = "ffmpeg delivers a pixel format other than yuv420p or yuv444p".to_string();
+                    let reason = format!("ffmpeg delivers a pixel format other than {formats}");
                     return Err(src.decode_err(None, reason));
                 }
             }
