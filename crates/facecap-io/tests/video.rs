@@ -172,6 +172,12 @@ fn ffmpeg_raw(ffmpeg: &Path, file: &Path, pix_fmt: &str, frames: u32) -> Vec<u8>
     out.stdout
 }
 
+/// Mean absolute difference of two byte buffers (over the shorter length's pairs,
+/// divided by `b`'s length).
+fn mean_abs_diff(a: &[u8], b: &[u8]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| f64::from(x.abs_diff(*y))).sum::<f64>() / b.len() as f64
+}
+
 #[test]
 fn luma_modes_and_rgb_on_shared_clip() {
     let test = "luma_modes_and_rgb_on_shared_clip";
@@ -207,14 +213,7 @@ fn luma_modes_and_rgb_on_shared_clip() {
     let f = src.next_frame().unwrap().unwrap();
     // Full = ffmpeg's own limited->full expansion (-pix_fmt gray), bit for bit.
     assert_eq!(f.gray.as_raw()[..], full[..]);
-    let rgb = f.rgb.unwrap();
-    let diff: f64 = rgb
-        .as_raw()
-        .iter()
-        .zip(&rgb_ref)
-        .map(|(a, b)| f64::from(a.abs_diff(*b)))
-        .sum::<f64>()
-        / rgb_ref.len() as f64;
+    let diff = mean_abs_diff(f.rgb.unwrap().as_raw(), &rgb_ref);
     assert!(diff < 2.0, "mean |RGB - ffmpeg rgb24| = {diff}");
 }
 
@@ -262,13 +261,7 @@ fn full_range_video_keeps_its_codes() {
         let f = src.next_frame().unwrap().unwrap();
         assert_eq!(f.gray.as_raw()[..], gray[..], "grey, rgb {rgb}");
         if let Some(img) = f.rgb {
-            let diff: f64 = img
-                .as_raw()
-                .iter()
-                .zip(&rgb_ref)
-                .map(|(a, b)| f64::from(a.abs_diff(*b)))
-                .sum::<f64>()
-                / rgb_ref.len() as f64;
+            let diff = mean_abs_diff(img.as_raw(), &rgb_ref);
             assert!(diff < 2.0, "mean |RGB - ffmpeg rgb24| = {diff}");
         }
     }
