@@ -584,12 +584,7 @@ impl Interpreter {
     pub fn run(&self, ws: &mut Workspace) -> Result<()> {
         self.check_ws(ws)?;
         let level = kernels::Level::detect();
-        let run = Run { it: self, ws, level };
-        match level {
-            #[cfg(target_arch = "x86_64")]
-            kernels::Level::V3(simd) => pulp::Simd::vectorize(simd, run),
-            kernels::Level::Portable => pulp::Arch::new().dispatch(run),
-        }
+        level.vectorize(Run { it: self, ws });
         Ok(())
     }
 }
@@ -687,12 +682,7 @@ impl Interpreter {
         for step in &self.steps {
             let t0 = std::time::Instant::now();
             let level = kernels::Level::detect();
-            let one = One { step, ws, level };
-            match level {
-                #[cfg(target_arch = "x86_64")]
-                kernels::Level::V3(simd) => pulp::Simd::vectorize(simd, one),
-                kernels::Level::Portable => pulp::Arch::new().dispatch(one),
-            }
+            level.vectorize(One { step, ws });
             times.push(t0.elapsed().as_secs_f64());
         }
         Ok(times)
@@ -718,30 +708,28 @@ fn step_name(step: &Step) -> &'static str {
 struct One<'a> {
     step: &'a Step,
     ws: &'a mut Workspace,
-    level: kernels::Level,
 }
 
-impl pulp::WithSimd for One<'_> {
+impl kernels::WithLevel for One<'_> {
     type Output = ();
 
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        exec(self.step, self.ws, self.level);
+    fn with_level(self, level: kernels::Level) {
+        exec(self.step, self.ws, level);
     }
 }
 
 struct Run<'a> {
     it: &'a Interpreter,
     ws: &'a mut Workspace,
-    level: kernels::Level,
 }
 
-impl pulp::WithSimd for Run<'_> {
+impl kernels::WithLevel for Run<'_> {
     type Output = ();
 
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _simd: S) {
-        let Run { it, ws, level } = self;
+    fn with_level(self, level: kernels::Level) {
+        let Run { it, ws } = self;
         for step in &it.steps {
             exec(step, ws, level);
         }

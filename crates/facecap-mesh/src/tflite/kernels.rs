@@ -19,6 +19,7 @@ use super::model::{Activation, Window};
 
 /// Widest packed panel, in output channels (three 8-lane registers).
 pub const MAX_NR: usize = 24;
+
 /// Rows (output pixels) per register block of the portable kernel.
 pub const MR: usize = 4;
 /// Rows per chunk of the GEMM: every panel of a layer runs over one chunk of `A` rows
@@ -249,7 +250,9 @@ fn store<const W: usize>(
 
 /// The AVX2/FMA register block: `MR_V3 x 16` accumulators in twelve `f32x8` registers,
 /// written with explicit vector types so they stay in registers across the `k` loop
-/// (the array-of-floats version of [`micro`] spills them to the stack).
+/// (the array-of-floats version of [`micro`] spills them to the stack). The AVX2 level
+/// runs these, inlined into the interpreter's body; the AVX-512 level runs [`x86`]
+/// (the same blocks written over the register width, compiled once per kernel).
 #[cfg(target_arch = "x86_64")]
 mod v3 {
     use super::{Activation, Epilogue, Packed, Post, MAX_NR};
@@ -853,7 +856,13 @@ mod v3 {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
+mod x86;
+
 /// The SIMD level the kernels run with, chosen once per inference.
+///
+/// Every level gives the same bits: the register kernels sum each output value in the
+/// same order as the portable ones, with one fused multiply-add per tap.
 #[derive(Debug, Clone, Copy)]
 pub enum Level {
     /// Portable loops (auto-vectorised for the build target).
@@ -861,16 +870,118 @@ pub enum Level {
     /// AVX2 + FMA (x86-64-v3) register blocks.
     #[cfg(target_arch = "x86_64")]
     V3(pulp::x86::V3),
+    /// AVX-512 (x86-64-v4): 16-float register blocks where a layer has 16 or more
+    /// channels, the AVX2 blocks (with 32 registers) elsewhere.
+    #[cfg(target_arch = "x86_64")]
+    V4(pulp::x86::V4),
 }
 
+/// Environment variable that caps the SIMD level: `portable`, `avx2` (or `v3`); any
+/// other value, or none, lets the CPU decide. For comparing levels on one machine.
+pub const SIMD_ENV: &str = "FACECAP_SIMD";
+
 impl Level {
-    /// The best level this CPU supports.
+    /// The best level this CPU supports, capped by [`SIMD_ENV`] (read once per process).
     pub fn detect() -> Level {
+        static LEVEL: std::sync::OnceLock<Level> = std::sync::OnceLock::new();
+        *LEVEL.get_or_init(|| {
+            let cap = match std::env::var(SIMD_ENV).as_deref() {
+                Ok("portable") => 0,
+                Ok("avx2" | "v3") => 1,
+                _ => 2,
+            };
+            Level::all()
+                .into_iter()
+                .rev()
+                .find(|l| l.rank() <= cap)
+                .unwrap_or(Level::Portable)
+        })
+    }
+
+    /// Every level this CPU supports, from [`Level::Portable`] up (for tests and
+    /// benchmarks that compare them).
+    pub fn all() -> Vec<Level> {
+        let mut v = vec![Level::Portable];
         #[cfg(target_arch = "x86_64")]
-        if let Some(v3) = pulp::x86::V3::try_new() {
-            return Level::V3(v3);
+        {
+            if let Some(v3) = pulp::x86::V3::try_new() {
+                v.push(Level::V3(v3));
+            }
+            if let Some(v4) = pulp::x86::V4::try_new() {
+                v.push(Level::V4(v4));
+            }
         }
-        Level::Portable
+        v
+    }
+
+    /// 0 portable, 1 AVX2, 2 AVX-512.
+    fn rank(&self) -> u8 {
+        match self {
+            Level::Portable => 0,
+            #[cfg(target_arch = "x86_64")]
+            Level::V3(_) => 1,
+            #[cfg(target_arch = "x86_64")]
+            Level::V4(_) => 2,
+        }
+    }
+
+    /// Runs `op` with this level's target features enabled. `op` receives the level as
+    /// a constant, so each level's body compiles only its own kernels.
+    #[inline(always)]
+    pub fn vectorize<Op: WithLevel>(self, op: Op) -> Op::Output {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            Level::V4(simd) => pulp::Simd::vectorize(simd, AtV4(simd, op)),
+            #[cfg(target_arch = "x86_64")]
+            Level::V3(simd) => pulp::Simd::vectorize(simd, AtV3(simd, op)),
+            Level::Portable => pulp::Simd::vectorize(pulp::Scalar::new(), AtPortable(op)),
+        }
+    }
+}
+
+/// A body run by [`Level::vectorize`].
+pub trait WithLevel {
+    /// What the body returns.
+    type Output;
+    /// Runs the body at `level`.
+    fn with_level(self, level: Level) -> Self::Output;
+}
+
+/// `op` at one level, inside that level's target features. One type per level, so that
+/// the level handed to the body is a constant there (a field would be read at run time,
+/// and every level's kernels compiled into every body).
+struct AtPortable<Op>(Op);
+#[cfg(target_arch = "x86_64")]
+struct AtV3<Op>(pulp::x86::V3, Op);
+#[cfg(target_arch = "x86_64")]
+struct AtV4<Op>(pulp::x86::V4, Op);
+
+impl<Op: WithLevel> pulp::WithSimd for AtPortable<Op> {
+    type Output = Op::Output;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Op::Output {
+        self.0.with_level(Level::Portable)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<Op: WithLevel> pulp::WithSimd for AtV3<Op> {
+    type Output = Op::Output;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Op::Output {
+        self.1.with_level(Level::V3(self.0))
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<Op: WithLevel> pulp::WithSimd for AtV4<Op> {
+    type Output = Op::Output;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _simd: S) -> Op::Output {
+        self.1.with_level(Level::V4(self.0))
     }
 }
 
@@ -885,16 +996,23 @@ pub fn depthwise_at(
     ep: &Epilogue<'_>,
     out: &mut [f32],
 ) {
-    match level {
+    let done = match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::V4(simd) => x86::depthwise_at(simd, input, g, filter, bias, ep, out),
         #[cfg(target_arch = "x86_64")]
         Level::V3(simd) if g.ic >= 8 && g.win.kh == 3 && g.win.kw == 3 && g.win.dh == 1 && g.win.dw == 1 => {
-            v3::depthwise3x3(simd, input, g, filter, bias, ep, out)
+            v3::depthwise3x3(simd, input, g, filter, bias, ep, out);
+            true
         }
         #[cfg(target_arch = "x86_64")]
         Level::V3(simd) if g.ic % 8 == 0 && g.win.kh <= v3::MAX_TAPS && g.win.kw <= v3::MAX_TAPS => {
-            v3::depthwise(simd, input, g, filter, bias, ep, out)
+            v3::depthwise(simd, input, g, filter, bias, ep, out);
+            true
         }
-        _ => depthwise(input, g, filter, bias, ep, out),
+        _ => false,
+    };
+    if !done {
+        depthwise(input, g, filter, bias, ep, out)
     }
 }
 
@@ -902,9 +1020,11 @@ pub fn depthwise_at(
 #[inline(always)]
 pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
     match level {
-        Level::Portable => gemm(a, rows, w, ep, out),
+        #[cfg(target_arch = "x86_64")]
+        Level::V4(simd) => x86::gemm_at(simd, a, rows, w, ep, out),
         #[cfg(target_arch = "x86_64")]
         Level::V3(simd) => v3::gemm(simd, a, rows, w, ep, out),
+        Level::Portable => gemm(a, rows, w, ep, out),
     }
 }
 
@@ -970,6 +1090,8 @@ pub fn conv_window(
     out: &mut [f32],
 ) {
     match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::V4(simd) if g.win.dh == 1 && g.win.dw == 1 => x86::conv_direct_at(simd, input, g, w, ep, col, out),
         #[cfg(target_arch = "x86_64")]
         Level::V3(simd) if g.win.dh == 1 && g.win.dw == 1 => v3::conv_direct(simd, input, g, w, ep, col, out),
         _ => conv_im2col(level, input, g, w, ep, col, out),
@@ -1498,7 +1620,7 @@ mod tests {
                 };
                 let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
                 let mut scratch = vec![0.0; rows * k * k * ic];
-                for level in [Level::Portable, Level::detect()] {
+                for level in Level::all() {
                     let mut chunked = vec![0.0; g.oh * g.ow * oc];
                     conv_im2col(level, &input, &g, &packed, &ep, &mut scratch, &mut chunked);
                     let mut direct = vec![0.0; g.oh * g.ow * oc];
@@ -1559,7 +1681,7 @@ mod tests {
             };
             let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
             let mut scratch = vec![0.0; rows * k * k * ic];
-            for level in [Level::Portable, Level::detect()] {
+            for level in Level::all() {
                 let mut got = vec![0.0; g.oh * g.ow * oc];
                 conv_window(level, &input, &g, &packed, &ep, &mut scratch, &mut got);
                 let d = max_diff(&got, &want);
@@ -1604,7 +1726,7 @@ mod tests {
                     want[p * n + co] = if v >= 0.0 { v } else { v * alpha[co] };
                 }
             }
-            for level in [Level::Portable, Level::detect()] {
+            for level in Level::all() {
                 let mut got = vec![0.0; rows * n];
                 gemm_at(level, &a, rows, &packed, &ep, &mut got);
                 let d = max_diff(&got, &want);
@@ -1635,7 +1757,7 @@ mod tests {
             let filter = rnd(&mut rng, k * k * c);
             let bias = rnd(&mut rng, c);
             let want = reference::depthwise(&input, &g, &filter, &bias, Activation::Relu6);
-            for level in [Level::Portable, Level::detect()] {
+            for level in Level::all() {
                 let mut got = vec![0.0; g.oh * g.ow * c];
                 depthwise_at(
                     level,
@@ -1648,6 +1770,66 @@ mod tests {
                 );
                 let d = max_diff(&got, &want);
                 assert!(d < 1e-5, "case {case} {level:?}: max difference {d}");
+            }
+        }
+    }
+
+    /// Every SIMD level this CPU has gives the portable kernels' bits (each output is
+    /// summed in the same order at every width), on the landmark model's layer shapes
+    /// (8 to 128 channels, 1x1, 2x2/2, 3x3/2, depthwise 3x3) and on odd ones around them.
+    #[test]
+    fn every_level_gives_the_same_bits() {
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        for case in 0..36 {
+            let (k, s) = [(1usize, 1usize), (2, 2), (3, 2), (3, 1)][case % 4];
+            let ic = [8usize, 16, 32, 3, 64, 13][(case / 4) % 6];
+            let oc = [16usize, 8, 32, 64, 48, 40, 13, 128, 24][case % 9];
+            let (ih, iw) = (rng.random_range(k..20), rng.random_range(k..20));
+            let Some((g, input, filter, bias)) = random_conv(&mut rng, ih, iw, ic, oc, k, s, Padding::Same) else {
+                continue;
+            };
+            let res = rnd(&mut rng, g.oh * g.ow * oc);
+            let alpha = rnd(&mut rng, oc.max(ic));
+            let ep = Epilogue {
+                act: Activation::None,
+                residual: Some(&res),
+                post: Post::Prelu(&alpha[..oc]),
+            };
+            let packed = Packed::new(&filter, Some(&bias), oc, k * k * ic);
+            let mut scratch = vec![0.0; g.oh * g.ow * k * k * ic];
+            let dw_filter = rnd(&mut rng, 9 * ic);
+            let dw_bias = rnd(&mut rng, ic);
+            let dw_geom = Geom::new(ih, iw, ic, square_window(3, s, Padding::Same)).expect("3x3 fits");
+            let dw_ep = Epilogue {
+                act: Activation::None,
+                residual: None,
+                post: Post::Prelu(&alpha[..ic]),
+            };
+            let mut first: Option<(Vec<u32>, Vec<u32>)> = None;
+            for level in Level::all() {
+                let mut conv = vec![0.0; g.oh * g.ow * oc];
+                if g.is_pointwise() {
+                    gemm_at(level, &input, g.oh * g.ow, &packed, &ep, &mut conv);
+                } else {
+                    conv_window(level, &input, &g, &packed, &ep, &mut scratch, &mut conv);
+                }
+                let mut dw = vec![0.0; dw_geom.oh * dw_geom.ow * ic];
+                depthwise_at(level, &input, &dw_geom, &dw_filter, &dw_bias, &dw_ep, &mut dw);
+                let got = (bits(&conv), bits(&dw));
+                match &first {
+                    None => first = Some(got),
+                    Some(want) => {
+                        assert!(
+                            got.0 == want.0,
+                            "case {case}: {ih}x{iw}x{ic} -> {oc} k{k}/{s} at {level:?} differs from the portable bits"
+                        );
+                        assert!(
+                            got.1 == want.1,
+                            "case {case}: depthwise {ih}x{iw}x{ic}/{s} at {level:?} differs"
+                        );
+                    }
+                }
             }
         }
     }
