@@ -120,10 +120,12 @@ pub struct Args {
     /// `--ert-precision`.
     #[command(flatten)]
     pub ert: crate::ert_flag::ErtFlag,
-    /// Landmark front end: `dlib68` (dlib's detector and 68-point model, LK tracking) or
-    /// `mesh` (MediaPipe's face detector and 478-point face mesh, read as the same 68
-    /// points; docs/mesh.md).
-    #[arg(long, value_name = "dlib68|mesh", default_value = "dlib68")]
+    /// Landmark front end: `mesh` (MediaPipe's face detector and 478-point face mesh,
+    /// read as the 68 iBUG points, with the irises for gaze; docs/mesh.md) or `dlib68`
+    /// (dlib's detector and 68-point model, LK tracking). `mesh` is the default: its
+    /// weights follow the face more closely (docs/expressions.md); `dlib68` runs about
+    /// twice as fast.
+    #[arg(long, value_name = "mesh|dlib68", default_value = "mesh")]
     pub landmarks: facecap_pipeline::FrontEnd,
     /// Points of the face mesh the `exact3d` solve fits with `--landmarks mesh`: `all`
     /// (the 68 iBUG points plus every other mesh point that lies on the rig;
@@ -398,6 +400,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         })
         .transpose()?;
     let args_echo = json!({
+        "landmarks": args.landmarks.to_string(),
         "rig": rig_name,
         "solver": method.name(),
         "temporal": args.solve.temporal,

@@ -147,12 +147,16 @@ fn commands_agree_on_their_shared_outputs() {
             ])
             .arg(&model),
     );
-    // capture: everything at once
+    // capture: everything at once. `landmarks`, `tensor fit` and `muscle track` track
+    // with dlib's 68 points, so capture is asked for the same front end here (its
+    // default is the face mesh).
     run_ok(
         facecap()
             .args([
                 "capture",
                 "--quiet",
+                "--landmarks",
+                "dlib68",
                 "--solver",
                 "exact3d",
                 "--muscles",

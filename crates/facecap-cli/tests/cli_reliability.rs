@@ -91,11 +91,17 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     // An image folder frame_1..frame_12 (natural order) with frame_5 corrupt.
     let frames_dir = dir.join("frames");
     std::fs::create_dir_all(&frames_dir).unwrap();
-    let mut src = facecap_io::video::open_source(&clip, &Default::default()).unwrap();
+    // Colour frames: the default front end (`mesh`) reads colour, so the folder's frames
+    // must hold the Y4M's colours for the landmarks to match.
+    let rgb = facecap_io::video::SourceOptions {
+        rgb: true,
+        ..Default::default()
+    };
+    let mut src = facecap_io::video::open_source(&clip, &rgb).unwrap();
     let mut f = facecap_io::video::Frame::default();
     let mut k = 1;
     while facecap_io::video::FrameSource::read_into(src.as_mut(), &mut f).unwrap() {
-        f.gray.save(frames_dir.join(format!("frame_{k}.png"))).unwrap();
+        f.rgb.as_ref().unwrap().save(frames_dir.join(format!("frame_{k}.png"))).unwrap();
         k += 1;
     }
     let png = std::fs::read(frames_dir.join("frame_5.png")).unwrap();
