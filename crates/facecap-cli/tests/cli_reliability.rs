@@ -101,7 +101,11 @@ fn capture_salvages_damaged_inputs_into_unique_folders() {
     let mut f = facecap_io::video::Frame::default();
     let mut k = 1;
     while facecap_io::video::FrameSource::read_into(src.as_mut(), &mut f).unwrap() {
-        f.rgb.as_ref().unwrap().save(frames_dir.join(format!("frame_{k}.png"))).unwrap();
+        f.rgb
+            .as_ref()
+            .unwrap()
+            .save(frames_dir.join(format!("frame_{k}.png")))
+            .unwrap();
         k += 1;
     }
     let png = std::fs::read(frames_dir.join("frame_5.png")).unwrap();
