@@ -126,7 +126,7 @@ fn synth_then_capture_with_a_bad_video() {
     // The default front end (`mesh`) and `dlib68`, each with its own measured bounds.
     // The synthetic clip moves the photo's dlib-defined 68 points, so `dlib68` reads its
     // truth more directly: measured 2026-12-06, weight RMSE 0.0815 (dlib68) and 0.0956
-    // (mesh), eyeBlink 0.109 / 0.131 and 0.135 / 0.156, jawOpen 0.033 and 0.07.
+    // (mesh), eyeBlink 0.109 / 0.131 and 0.135 / 0.156, jawOpen 0.033 and 0.099.
     for (front, overall, blink) in [("mesh", 0.12, 0.18), ("dlib68", 0.10, 0.14)] {
         let cal = capture(&format!("cal_{front}"), &["--landmarks", front]);
         let none = capture(&format!("none_{front}"), &["--landmarks", front, "--neutral", "none"]);
