@@ -193,6 +193,16 @@ pub struct SolveArgs {
     /// `fixed` keeps the landmark map's vertex.
     #[arg(long, value_name = "pose|fixed", default_value = "pose", value_parser = ["pose", "fixed"])]
     pub contour: String,
+    /// With `--rig`: `builtin` also solves the built-in rig on the same frames and writes,
+    /// for each shape both rigs solve (matched by ARKit name, e.g. `eyeBlinkLeft` =
+    /// `eyeBlink_L`), the mean of the two rigs' weights; the pose and the other shapes stay
+    /// the rig's own. `none`: the rig's own weights alone. On the shared clips the ICT rig's
+    /// weights follow MediaPipe's scores with mean r 0.743 alone and 0.78 with the built-in
+    /// companion (docs/expressions.md, "The built-in rig as a companion"). Used where the
+    /// whole clip is solved first (`capture` with a neutral calibration, the default); not
+    /// by `live`, and not for rigs sharing fewer than 10 solved shapes with the built-in one.
+    #[arg(long, value_name = "builtin|none", default_value = "builtin", value_parser = ["builtin", "none"])]
+    pub companion: String,
 }
 
 /// Everything shared by all videos.
@@ -200,6 +210,8 @@ pub(crate) struct Setup {
     rig_mesh: MorphMesh,
     renderer: facecap_pipeline::RigRenderer,
     expression: ExpressionSetup,
+    /// The built-in rig as the companion of `--rig` (`--companion builtin`).
+    companion: Option<Box<(ExpressionSetup, NeutralHook)>>,
     rig_name: String,
     camera: Option<Intrinsics>,
     tracker: VideoTracker,
@@ -285,12 +297,14 @@ pub(crate) struct ExpressionParts {
     pub(crate) renderer: facecap_pipeline::RigRenderer,
     pub(crate) expression: ExpressionSetup,
     pub(crate) neutral: NeutralHook,
+    /// The built-in rig's set-up as the companion of `--rig` (`--companion builtin`).
+    pub(crate) companion: Option<Box<(ExpressionSetup, NeutralHook)>>,
 }
 
-pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Result<ExpressionParts> {
+pub(crate) fn expression_parts(solve: &SolveArgs, neutral_arg: &str) -> anyhow::Result<ExpressionParts> {
     let (rig, landmark_map, temporal) = (solve.rig.as_deref(), solve.landmark_map.as_deref(), solve.temporal);
     let method: Method = solve.solver.parse()?;
-    let neutral: crate::neutral::NeutralChoice = neutral.parse()?;
+    let neutral: crate::neutral::NeutralChoice = neutral_arg.parse()?;
     if !(temporal.is_finite() && temporal >= 0.0) {
         anyhow::bail!("--temporal must be finite and >= 0, got {temporal}");
     }
@@ -324,7 +338,19 @@ pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Resu
     };
     objective.validate()?;
     let priors = rig_priors(&rig);
+    let companion = if solve.rig.is_some() && solve.companion == "builtin" {
+        let builtin = SolveArgs {
+            rig: None,
+            landmark_map: None,
+            ..solve.clone()
+        };
+        let parts = expression_parts(&builtin, neutral_arg)?;
+        Some(Box::new((parts.expression, parts.neutral)))
+    } else {
+        None
+    };
     Ok(ExpressionParts {
+        companion,
         rig_mesh,
         map,
         rig_name,
@@ -358,6 +384,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         renderer,
         mut expression,
         neutral,
+        companion,
     } = expression_parts(&args.solve, &args.neutral)?;
     let method = expression.method;
     if args.mesh_points == "all" && args.landmarks == facecap_pipeline::FrontEnd::Mesh && method == Method::Exact3d {
@@ -413,6 +440,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         "still_head": args.still_head,
         "neutral": args.neutral,
         "priors": "observability defaults (facecap rig)",
+        "companion": if args.solve.rig.is_some() { args.solve.companion.as_str() } else { "none" },
     });
     let file = |p: Option<&PathBuf>| facecap_pipeline::resume::file_identity_or_null(p.map(PathBuf::as_path));
     let output_settings = json!({
@@ -435,6 +463,7 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         rig_mesh,
         renderer,
         expression,
+        companion,
         rig_name,
         camera,
         tracker,
@@ -674,6 +703,20 @@ fn capture_one(
             max: args.sheet_frames.max(1),
         },
     )?;
+    let mut companion_note = serde_json::Value::Null;
+    if let Some(c) = setup.companion.as_deref() {
+        let shared = facecap_pipeline::expression::shared_solved_shapes(&setup.expression, &c.0).len();
+        if !calibrate {
+            companion_note = json!({"skipped": "no whole-clip neutral calibration (--neutral none)"});
+        } else if shared < facecap_pipeline::expression::MIN_COMPANION_SHAPES {
+            companion_note = json!({"skipped": format!(
+                "the rig shares {shared} solved shapes with the built-in rig (by ARKit name); at least {} are needed",
+                facecap_pipeline::expression::MIN_COMPANION_SHAPES
+            )});
+        } else {
+            solve = solve.with_companion("built-in default rig", &c.0, &c.1 as &dyn NeutralCalibration)?;
+        }
+    }
     let mut muscles = setup
         .muscles
         .as_ref()
@@ -840,6 +883,7 @@ fn capture_one(
         "animation_fps": fps,
         "truth": truth,
         "neutral_calibration": result.neutral_report,
+        "companion": if result.companion.is_null() { companion_note } else { result.companion.clone() },
         "solve_points": {
             "landmarks": setup.expression.rig.num_mapped(),
             "dense": setup.expression.dense.as_ref().map_or(0, |d| d.len()),

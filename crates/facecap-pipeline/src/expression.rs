@@ -158,6 +158,8 @@ pub struct ExpressionResult {
     pub failures: Vec<(u64, String)>,
     /// Frames solved with the dense points ([`ExpressionSetup::dense`]) observed.
     pub dense_frames: u64,
+    /// What the companion rig did (`null` without one, [`ExpressionSink::with_companion`]).
+    pub companion: serde_json::Value,
 }
 
 /// Largest plausible mean reprojection error of a solve, as a fraction of the tracked
@@ -215,8 +217,9 @@ pub struct ExpressionSink<'a> {
     sheet_policy: FrameImages,
     solving: Option<Solving>,
     buffered: Vec<TrackedFace>,
-    pose_csv: FrameCsvWriter,
-    w_csv: FrameCsvWriter,
+    /// `pose.csv` and `weights.csv` (`None`: a companion's sink, which writes nothing).
+    pose_csv: Option<FrameCsvWriter>,
+    w_csv: Option<FrameCsvWriter>,
     result: ExpressionResult,
     pnp_model: Vec<Point3<f64>>,
     pnp_image: Vec<Point2<f64>>,
@@ -230,7 +233,54 @@ pub struct ExpressionSink<'a> {
     blink_idx: Vec<BlinkShape>,
     /// Neutral calibration on the fly (live input), see [`ExpressionSink::with_live_neutral`].
     live: Option<LiveNeutralState>,
+    /// A second rig solved on the same frames, see [`ExpressionSink::with_companion`].
+    companion: Option<Companion<'a>>,
 }
+
+/// The companion of [`ExpressionSink::with_companion`]: its sink (which writes nothing)
+/// and the shapes averaged, `(index in this rig, index in the companion)`.
+struct Companion<'a> {
+    sink: Box<ExpressionSink<'a>>,
+    pairs: Vec<(usize, usize)>,
+    /// The companion rig's name (for `summary.json`).
+    label: String,
+}
+
+/// The shapes two rigs both solve, matched by ARKit name (`eyeBlinkLeft` = `eyeBlink_L`,
+/// [`facecap_solve::observability::split_side`]; a sided shape of `a` with an unsided one
+/// of `b`), as `(index in a, index in b)`: a shape either rig's priors hold at 0 is not
+/// paired (its value comes from one rig alone).
+pub fn shared_solved_shapes(a: &ExpressionSetup, b: &ExpressionSetup) -> Vec<(usize, usize)> {
+    use facecap_solve::observability::split_side;
+    let free = |s: &ExpressionSetup, k: usize| match &s.priors {
+        Some(p) => !p.fixed.get(k).copied().unwrap_or(true),
+        None => true,
+    };
+    let mut out = Vec::new();
+    for (i, n) in a.rig.names.iter().enumerate() {
+        if !free(a, i) {
+            continue;
+        }
+        let key = split_side(n);
+        // a sided shape also pairs with the other rig's unsided one (ARKit's
+        // `browInnerUp` against ICT's `browInnerUp_L` / `_R`)
+        let j = b.rig.names.iter().position(|m| split_side(m) == key).or_else(|| {
+            b.rig
+                .names
+                .iter()
+                .position(|m| key.1.is_some() && split_side(m) == (key.0, None))
+        });
+        if let Some(j) = j {
+            if free(b, j) {
+                out.push((i, j));
+            }
+        }
+    }
+    out
+}
+
+/// Fewest shared shapes ([`shared_solved_shapes`]) for [`ExpressionSink::with_companion`].
+pub const MIN_COMPANION_SHAPES: usize = 10;
 
 /// When a live run takes the subject's neutral: the `window` seconds of tracked frames
 /// that start `after` seconds into the stream, and again (the next `window` seconds)
@@ -554,6 +604,16 @@ impl<'a> ExpressionSink<'a> {
         calibration: Option<&'a dyn NeutralCalibration>,
         sheet: FrameImages,
     ) -> Result<Self> {
+        Self::create_inner(Some(out_dir), setup, camera, calibration, sheet)
+    }
+
+    fn create_inner(
+        out_dir: Option<&Path>,
+        setup: &'a ExpressionSetup,
+        camera: Option<Intrinsics>,
+        calibration: Option<&'a dyn NeutralCalibration>,
+        sheet: FrameImages,
+    ) -> Result<Self> {
         if setup.method == Method::Exact3d && camera.is_none() {
             return Err(Error::invalid(
                 "camera",
@@ -575,8 +635,14 @@ impl<'a> ExpressionSink<'a> {
             sheet_policy: sheet,
             solving,
             buffered: Vec::new(),
-            pose_csv: FrameCsvWriter::create(out_dir.join("pose.csv"), &POSE_COLUMNS)?,
-            w_csv: FrameCsvWriter::create(out_dir.join("weights.csv"), &names)?,
+            pose_csv: match out_dir {
+                Some(d) => Some(FrameCsvWriter::create(d.join("pose.csv"), &POSE_COLUMNS)?),
+                None => None,
+            },
+            w_csv: match out_dir {
+                Some(d) => Some(FrameCsvWriter::create(d.join("weights.csv"), &names)?),
+                None => None,
+            },
             result: ExpressionResult {
                 names,
                 frames: Vec::new(),
@@ -585,6 +651,7 @@ impl<'a> ExpressionSink<'a> {
                 neutral_report: serde_json::Value::Null,
                 failures: Vec::new(),
                 dense_frames: 0,
+                companion: serde_json::Value::Null,
             },
             pnp_model: Vec::with_capacity(NUM_LANDMARKS),
             pnp_image: Vec::with_capacity(NUM_LANDMARKS),
@@ -593,7 +660,45 @@ impl<'a> ExpressionSink<'a> {
             gaze: Gaze::new(&setup.rig.names),
             blink_idx: BlinkShape::of_rig(&setup.rig.names),
             live: None,
+            companion: None,
         })
+    }
+
+    /// Also solves every frame with a second rig (`setup`, named `label`, calibrated by `calibration`)
+    /// and writes, for each shape both rigs solve ([`shared_solved_shapes`]), the mean of
+    /// the two rigs' weights; the pose, the reprojection error and every other shape are
+    /// this rig's. Two rigs with ARKit's names are two models of how the same expressions
+    /// move the landmarks; where one rig's shapes are nearly collinear on the landmarks
+    /// (ICT's `jawOpen` and `mouthShrugLower`, cos -0.97) the other's are not, and their
+    /// errors are partly independent: on the shared clips the ICT rig with the built-in
+    /// rig as companion follows MediaPipe's scores better than either alone
+    /// (docs/expressions.md, "The built-in rig as a companion"). Used where the whole clip
+    /// is solved before it is written (with a whole-clip `calibration` in [`Self::create`]);
+    /// a sink that solves as frames arrive ignores it.
+    ///
+    /// # Errors
+    /// Fewer than [`MIN_COMPANION_SHAPES`] shared shapes, or what [`Self::create`] fails with.
+    pub fn with_companion(
+        mut self,
+        label: &str,
+        setup: &'a ExpressionSetup,
+        calibration: &'a dyn NeutralCalibration,
+    ) -> Result<Self> {
+        let pairs = shared_solved_shapes(self.setup, setup);
+        if pairs.len() < MIN_COMPANION_SHAPES {
+            return Err(Error::invalid(
+                "companion rig",
+                format!("{} shapes shared", pairs.len()),
+                format!("at least {MIN_COMPANION_SHAPES} shapes both rigs solve, matched by ARKit name"),
+            ));
+        }
+        let sink = Self::create_inner(None, setup, self.camera, Some(calibration), FrameImages::None)?;
+        self.companion = Some(Companion {
+            sink: Box::new(sink),
+            pairs,
+            label: label.to_string(),
+        });
+        Ok(self)
     }
 
     /// Calibrates the subject's neutral while frames stream (live input): frames are
@@ -744,8 +849,12 @@ impl<'a> ExpressionSink<'a> {
     /// # Errors
     /// When a file cannot be written or renamed.
     pub fn finish(self) -> Result<ExpressionResult> {
-        self.pose_csv.finish()?;
-        self.w_csv.finish()?;
+        if let Some(c) = self.pose_csv {
+            c.finish()?;
+        }
+        if let Some(c) = self.w_csv {
+            c.finish()?;
+        }
         Ok(self.result)
     }
 
@@ -820,7 +929,11 @@ impl<'a> ExpressionSink<'a> {
     fn write_frame(&mut self, out: SolvedFrame, face: &TrackedFace) -> Result<()> {
         let n = out.weights.len();
         let pose_values = pose_row(out.pose.as_ref());
-        self.pose_csv.write_row(&FrameRow {
+        let (Some(pose_csv), Some(w_csv)) = (self.pose_csv.as_mut(), self.w_csv.as_mut()) else {
+            self.result.frames.push(out);
+            return Ok(());
+        };
+        pose_csv.write_row(&FrameRow {
             frame: face.index,
             timestamp: face.timestamp,
             success: out.success && out.pose.is_some(),
@@ -833,7 +946,7 @@ impl<'a> ExpressionSink<'a> {
         } else {
             nan.iter().copied().cycle().take(n).collect()
         };
-        self.w_csv.write_row(&FrameRow {
+        w_csv.write_row(&FrameRow {
             frame: face.index,
             timestamp: face.timestamp,
             success: out.success,
@@ -973,6 +1086,52 @@ fn solver_camera(camera: Option<Intrinsics>) -> Result<Intrinsics> {
     }
 }
 
+impl ExpressionSink<'_> {
+    /// Calibrates on every tracked frame of `faces`, then solves each (not smoothed).
+    fn solve_clip(
+        &mut self,
+        cal: &dyn NeutralCalibration,
+        faces: &[TrackedFace],
+    ) -> Result<(Vec<SolvedFrame>, Solving)> {
+        let tracked: Vec<(u64, Landmarks68)> = faces
+            .iter()
+            .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
+            .collect();
+        let (mut solver, mut report) =
+            build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
+        let dense = calibrate_dense(&mut solver, faces);
+        if let (serde_json::Value::Object(o), false) = (&mut report, dense.is_null()) {
+            o.insert("dense".into(), dense);
+        }
+        self.result.neutral_report = report;
+        let irises: Vec<IrisFrame> = faces.iter().filter_map(|t| t.iris).collect();
+        self.gaze.rest = GazeRest::median_of(&irises);
+        self.gaze.rest_from_clip = self.gaze.rest.is_some();
+        let mut sv = Solving::new(solver);
+        let solved = faces.iter().map(|face| self.solve_frame(&mut sv, face)).collect();
+        Ok((solved, sv))
+    }
+}
+
+/// Replaces each paired shape's weight of `frames` by the mean of it and `other`'s
+/// (`pairs`: index in `frames`, index in `other`), on the frames both solved. Returns how
+/// many frames were averaged.
+pub(crate) fn average_shared(frames: &mut [SolvedFrame], other: &[SolvedFrame], pairs: &[(usize, usize)]) -> u64 {
+    let mut n = 0;
+    for (f, o) in frames.iter_mut().zip(other) {
+        if !(f.success && o.success && f.index == o.index) {
+            continue;
+        }
+        n += 1;
+        for &(i, j) in pairs {
+            if let (Some(a), Some(&b)) = (f.weights.get(i).copied(), o.weights.get(j)) {
+                f.weights[i] = 0.5 * (a + b);
+            }
+        }
+    }
+    n
+}
+
 impl Sink for ExpressionSink<'_> {
     fn name(&self) -> &str {
         "solve"
@@ -1017,25 +1176,27 @@ impl Sink for ExpressionSink<'_> {
         if self.solving.is_some() {
             return Ok(());
         }
-        let tracked: Vec<(u64, Landmarks68)> = self
-            .buffered
-            .iter()
-            .filter_map(|t| t.landmarks.clone().map(|l| (t.index, l)))
-            .collect();
-        let (mut solver, mut report) =
-            build_expression_solve(self.setup, solver_camera(self.camera)?, Some((cal, &tracked)))?;
-        let dense = calibrate_dense(&mut solver, &self.buffered);
-        if let (serde_json::Value::Object(o), false) = (&mut report, dense.is_null()) {
-            o.insert("dense".into(), dense);
-        }
-        self.result.neutral_report = report;
-        let irises: Vec<IrisFrame> = self.buffered.iter().filter_map(|t| t.iris).collect();
-        self.gaze.rest = GazeRest::median_of(&irises);
-        self.gaze.rest_from_clip = self.gaze.rest.is_some();
         let faces = std::mem::take(&mut self.buffered);
-        let mut sv = Solving::new(solver);
+        let (mut solved, sv) = self.solve_clip(cal, &faces)?;
+        if let Some(c) = self.companion.as_mut() {
+            let Some(c_cal) = c.sink.calibration else {
+                return Err(Error::invalid(
+                    "companion rig",
+                    "no calibration",
+                    "a whole-clip calibration",
+                ));
+            };
+            let (other, _) = c.sink.solve_clip(c_cal, &faces)?;
+            let averaged = average_shared(&mut solved, &other, &c.pairs);
+            let names: Vec<&str> = c.pairs.iter().map(|&(i, _)| self.result.names[i].as_str()).collect();
+            self.result.companion = serde_json::json!({
+                "rig": c.label,
+                "shapes_averaged": names,
+                "frames_averaged": averaged,
+                "neutral_calibration": c.sink.result.neutral_report,
+            });
+        }
         // the whole clip is known: every frame is solved first, then smoothed without lag
-        let mut solved: Vec<SolvedFrame> = faces.iter().map(|face| self.solve_frame(&mut sv, face)).collect();
         smooth_weights(&mut solved);
         for (out, face) in solved.into_iter().zip(&faces) {
             self.write_frame(out, face)?;
@@ -1167,5 +1328,71 @@ mod tests {
         assert!((closed_eye_sideways(0.25, 0.4) - 0.3).abs() < 1e-12);
         assert_eq!(closed_eye_sideways(f64::NAN, 0.4), 0.4);
         assert_eq!(closed_eye_sideways(0.5, f64::NAN), 0.0);
+    }
+
+    fn setup_named(names: &[&str], fixed: &[usize]) -> ExpressionSetup {
+        let mut rig = BlendshapeRig::synthetic(names.len(), 3);
+        rig.names = names.iter().map(|n| n.to_string()).collect();
+        let mut priors = ShapePriors::neutral(names.len());
+        for &k in fixed {
+            priors.fixed[k] = true;
+        }
+        ExpressionSetup {
+            rig,
+            method: Method::Exact3d,
+            objective: ObjectiveParams::default(),
+            priors: Some(priors),
+            dense: None,
+        }
+    }
+
+    #[test]
+    fn companion_shapes_match_by_arkit_name_and_only_where_both_rigs_solve_them() {
+        // ICT-style and ARKit-style names; cheekSquint held at 0 by the companion,
+        // eyeLookUp by both; mouthLeft is a direction, not a side
+        let a = setup_named(
+            &[
+                "eyeBlink_L",
+                "eyeBlink_R",
+                "cheekSquint_L",
+                "mouthLeft",
+                "eyeLookUp_L",
+                "tongueOut",
+                "browInnerUp_R",
+            ],
+            &[4],
+        );
+        let b = setup_named(
+            &[
+                "mouthLeft",
+                "eyeBlinkRight",
+                "eyeBlinkLeft",
+                "cheekSquintLeft",
+                "eyeLookUpLeft",
+                "browInnerUp",
+            ],
+            &[3, 4],
+        );
+        assert_eq!(shared_solved_shapes(&a, &b), vec![(0, 2), (1, 1), (3, 0), (6, 5)]);
+    }
+
+    #[test]
+    fn a_companion_averages_paired_shapes_on_frames_both_rigs_solved() {
+        let mut a = frames_of(&[0.2, 0.4, 0.6], &[]);
+        let mut b = frames_of(&[0.6, 0.0, 1.0], &[1]);
+        for f in &mut b {
+            f.weights.swap(0, 1); // the companion's order differs: shape 0 is its index 1
+        }
+        let n = average_shared(&mut a, &b, &[(0, 1)]);
+        assert_eq!(n, 2);
+        let got: Vec<f64> = a.iter().map(|f| f.weights[0]).collect();
+        // frame 1: the companion failed, this rig's weight stays
+        assert!((got[0] - 0.4).abs() < 1e-12 && (got[1] - 0.4).abs() < 1e-12 && (got[2] - 0.8).abs() < 1e-12);
+        // the unpaired shape stays this rig's
+        assert!(a.iter().all(|f| f.weights[1] == 0.5));
+        // a failed frame of this rig stays failed and untouched
+        let mut c = frames_of(&[0.2], &[0]);
+        assert_eq!(average_shared(&mut c, &frames_of(&[1.0], &[]), &[(0, 0)]), 0);
+        assert_eq!(c[0].weights[0], 0.2);
     }
 }
