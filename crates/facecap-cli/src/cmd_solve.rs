@@ -89,6 +89,12 @@ pub struct Args {
     /// Solve for these blendshapes only (comma-separated rig names, in this order; default: all).
     #[arg(long, value_name = "NAME,NAME,...")]
     pub shapes: Option<String>,
+    /// With `--rig`, as `capture --companion`: `builtin` also solves the built-in rig on the
+    /// same landmarks and writes, for each shape both rigs solve (matched by ARKit name), the
+    /// mean of the two rigs' weights; `none`: the rig's own weights alone. Used with a
+    /// whole-clip neutral calibration (`--neutral auto` or a frame, the default).
+    #[arg(long, value_name = "builtin|none", default_value = "builtin", value_parser = ["builtin", "none"])]
+    pub companion: String,
 }
 
 /// Frame rate from the records' frame numbers and timestamps (`None` when they do not say).
@@ -197,6 +203,38 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             .then_some(&hook as &dyn facecap_pipeline::NeutralCalibration),
         FrameImages::None,
     )?;
+    // the built-in rig beside `--rig` (`--companion builtin`), with its own priors and
+    // neutral calibration, as `capture`
+    let companion = match (&args.rig, args.companion.as_str(), hook.active()) {
+        (Some(_), "builtin", true) => {
+            let (mesh, map) = crate::default_rig::default_rig()?;
+            let rig = BlendshapeRig::from_morph_mesh(mesh, &map, "built-in default rig")?;
+            let priors = crate::cmd_capture::rig_priors(&rig);
+            let hook = crate::cmd_capture::NeutralHook {
+                choice: neutral,
+                method,
+                objective,
+                priors: priors.clone(),
+            };
+            let c = ExpressionSetup {
+                rig,
+                method,
+                objective,
+                priors,
+                dense: None,
+            };
+            let shared = facecap_pipeline::expression::shared_solved_shapes(&setup, &c).len();
+            (shared >= facecap_pipeline::expression::MIN_COMPANION_SHAPES).then_some((c, hook))
+        }
+        _ => None,
+    };
+    if let Some((c, h)) = &companion {
+        sink = sink.with_companion(
+            "built-in default rig",
+            c,
+            h as &dyn facecap_pipeline::NeutralCalibration,
+        )?;
+    }
     let replayed = facecap_pipeline::replay(&records, &mut [&mut sink])?;
     let solve_seconds = t0.elapsed().as_secs_f64();
     let result = sink.finish()?;
@@ -219,6 +257,13 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 rig_unit_mm: facecap_pipeline::openface::RIG_UNIT_MM,
             },
         )?;
+    }
+    if let Some(n) = result.companion["shapes_averaged"].as_array() {
+        crate::out::info(&format!(
+            "solve: {} shapes averaged with the built-in rig's on {} frames (--companion builtin)",
+            n.len(),
+            result.companion["frames_averaged"]
+        ));
     }
     let solved: Vec<&facecap_pipeline::SolvedFrame> = result.frames.iter().filter(|f| f.success).collect();
     let err = solved.iter().map(|f| f.reprojection_px).sum::<f64>() / solved.len().max(1) as f64;
