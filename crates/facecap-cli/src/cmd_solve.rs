@@ -104,6 +104,30 @@ fn fps_of(records: &[facecap_io::csv::LandmarkRecord]) -> Option<f64> {
     (df > 0.0 && dt > 0.0).then(|| df / dt)
 }
 
+/// The solve of `rig` with its default priors, and its neutral calibration hook.
+fn solve_setup(
+    rig: BlendshapeRig,
+    choice: crate::neutral::NeutralChoice,
+    method: Method,
+    objective: ObjectiveParams,
+) -> (ExpressionSetup, crate::cmd_capture::NeutralHook) {
+    let priors = crate::cmd_capture::rig_priors(&rig);
+    let hook = crate::cmd_capture::NeutralHook {
+        choice,
+        method,
+        objective,
+        priors: priors.clone(),
+    };
+    let setup = ExpressionSetup {
+        rig,
+        method,
+        objective,
+        priors,
+        dense: None,
+    };
+    (setup, hook)
+}
+
 /// Runs `facecap solve`.
 pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     let method: Method = args.method.parse()?;
@@ -180,20 +204,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     };
     objective.validate()?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let priors = crate::cmd_capture::rig_priors(&rig);
-    let hook = crate::cmd_capture::NeutralHook {
-        choice: neutral,
-        method,
-        objective,
-        priors: priors.clone(),
-    };
-    let setup = ExpressionSetup {
-        rig,
-        method,
-        objective,
-        priors,
-        dense: None,
-    };
+    let (setup, hook) = solve_setup(rig, neutral, method, objective);
     let t0 = std::time::Instant::now();
     let mut sink = ExpressionSink::create(
         &args.out,
@@ -209,20 +220,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         (Some(_), "builtin", true) => {
             let (mesh, map) = crate::default_rig::default_rig()?;
             let rig = BlendshapeRig::from_morph_mesh(mesh, &map, "built-in default rig")?;
-            let priors = crate::cmd_capture::rig_priors(&rig);
-            let hook = crate::cmd_capture::NeutralHook {
-                choice: neutral,
-                method,
-                objective,
-                priors: priors.clone(),
-            };
-            let c = ExpressionSetup {
-                rig,
-                method,
-                objective,
-                priors,
-                dense: None,
-            };
+            let (c, hook) = solve_setup(rig, neutral, method, objective);
             let shared = facecap_pipeline::expression::shared_solved_shapes(&setup, &c).len();
             (shared >= facecap_pipeline::expression::MIN_COMPANION_SHAPES).then_some((c, hook))
         }
