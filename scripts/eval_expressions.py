@@ -11,7 +11,10 @@ is compared with it shape by shape:
 * the score is Pearson's r over the frames where both have a face; a constant facecap
   curve scores 0; a shape the rig does not have is listed as missing, not scored;
 * "pinned": the fraction of frames where facecap's weight sits at its upper bound
-  (>= 0.98) while MediaPipe's is below 0.5 there (the issue's "at its bound" check).
+  (>= 0.98) while MediaPipe's is below 0.5 there (the issue's "at its bound" check);
+* "offset": facecap's median over the clip minus MediaPipe's, for every shape both have
+  (moving or not). Pearson's r cannot see a constant offset (a resting face that reads as
+  a frown); the mean |offset| over all (clip, shape) pairs is printed per rig.
 
 Usage (from the repository root; stdlib Python only):
 
@@ -94,6 +97,12 @@ def mean(xs):
     return sum(xs) / len(xs) if xs else float("nan")
 
 
+def median(xs):
+    v = sorted(xs)
+    n = len(v)
+    return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+
+
 def std(xs):
     m = mean(xs)
     return math.sqrt(sum((x - m) ** 2 for x in xs) / len(xs)) if xs else 0.0
@@ -128,12 +137,14 @@ def evaluate_clip(weights_csv, ref_csv):
         rv = [rc[f] for f in frames]
         ov = [oc[f] for f in frames]
         rs = std(rv)
+        offset = median(ov) - median(rv)
         pinned = sum(1 for o, r in zip(ov, rv) if o >= BOUND and r < 0.5) / len(frames)
         shapes[b] = {
             "r": pearson(ov, rv) if rs >= MIN_REF_STD else None,
             "ref_std": rs,
             "ours_std": std(ov),
             "pinned": pinned,
+            "offset": offset,
             "frames": len(frames),
         }
     # shapes facecap has but MediaPipe does not (tongueOut): pinned check only
@@ -216,23 +227,42 @@ def main():
             cmd += ["--out", out, "--force", "--quiet"] + [x.format(data=a.data) for x in RIGS[rig]] + extra
             print("+", " ".join(cmd), flush=True)
             subprocess.check_call(cmd)
-        per_clip, all_r, per_shape = {}, [], {}
+        per_clip, all_r, per_shape, offsets = {}, [], {}, []
         for c in clips:
             shapes, missing = evaluate_clip(
                 os.path.join(out, c, "weights.csv"), os.path.join(a.ref, f"mp_blendshapes_{c}.csv")
             )
             rs = {b: s["r"] for b, s in shapes.items() if s["r"] is not None}
             pinned = {b: round(s["pinned"], 3) for b, s in shapes.items() if s["pinned"] > 0.05}
-            per_clip[c] = {"mean_r": mean(list(rs.values())), "r": rs, "missing": missing, "pinned": pinned, "shapes": shapes}
+            offs = {b: s["offset"] for b, s in shapes.items() if s.get("offset") is not None}
+            offsets += [abs(v) for v in offs.values()]
+            per_clip[c] = {
+                "mean_r": mean(list(rs.values())),
+                "r": rs,
+                "missing": missing,
+                "pinned": pinned,
+                "offsets": offs,
+                "shapes": shapes,
+            }
             all_r += list(rs.values())
             for b, r in rs.items():
                 per_shape.setdefault(b, []).append(r)
         mean_r = mean(all_r)
-        result["rigs"][rig] = {"mean_r": mean_r, "per_clip": per_clip, "per_shape": {b: mean(v) for b, v in per_shape.items()}}
+        mean_offset = mean(offsets)
+        result["rigs"][rig] = {
+            "mean_r": mean_r,
+            "mean_abs_offset": mean_offset,
+            "per_clip": per_clip,
+            "per_shape": {b: mean(v) for b, v in per_shape.items()},
+        }
         print(f"\n== rig {rig}: mean r {mean_r:.3f} over {len(all_r)} (clip, shape) pairs")
+        print(f"   mean |median offset| {mean_offset:.4f} over {len(offsets)} (clip, shape) pairs")
         for c in clips:
             pc = per_clip[c]
             print(f"  {c:34s} mean r {pc['mean_r']:.3f}  shapes {len(pc['r']):2d}  pinned>5%: {pc['pinned'] or '-'}")
+            big = {b: round(v, 2) for b, v in sorted(pc["offsets"].items()) if abs(v) >= 0.15}
+            if big:
+                print(f"  {'':34s} median offsets >= 0.15: {big}")
             if a.per_shape:
                 for b, r in sorted(pc["r"].items()):
                     s = pc["shapes"][b]
