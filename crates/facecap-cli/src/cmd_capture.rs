@@ -297,14 +297,12 @@ pub(crate) struct ExpressionParts {
     pub(crate) renderer: facecap_pipeline::RigRenderer,
     pub(crate) expression: ExpressionSetup,
     pub(crate) neutral: NeutralHook,
-    /// The built-in rig's set-up as the companion of `--rig` (`--companion builtin`).
-    pub(crate) companion: Option<Box<(ExpressionSetup, NeutralHook)>>,
 }
 
-pub(crate) fn expression_parts(solve: &SolveArgs, neutral_arg: &str) -> anyhow::Result<ExpressionParts> {
+pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Result<ExpressionParts> {
     let (rig, landmark_map, temporal) = (solve.rig.as_deref(), solve.landmark_map.as_deref(), solve.temporal);
     let method: Method = solve.solver.parse()?;
-    let neutral: crate::neutral::NeutralChoice = neutral_arg.parse()?;
+    let neutral: crate::neutral::NeutralChoice = neutral.parse()?;
     if !(temporal.is_finite() && temporal >= 0.0) {
         anyhow::bail!("--temporal must be finite and >= 0, got {temporal}");
     }
@@ -338,19 +336,7 @@ pub(crate) fn expression_parts(solve: &SolveArgs, neutral_arg: &str) -> anyhow::
     };
     objective.validate()?;
     let priors = rig_priors(&rig);
-    let companion = if solve.rig.is_some() && solve.companion == "builtin" {
-        let builtin = SolveArgs {
-            rig: None,
-            landmark_map: None,
-            ..solve.clone()
-        };
-        let parts = expression_parts(&builtin, neutral_arg)?;
-        Some(Box::new((parts.expression, parts.neutral)))
-    } else {
-        None
-    };
     Ok(ExpressionParts {
-        companion,
         rig_mesh,
         map,
         rig_name,
@@ -384,8 +370,20 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         renderer,
         mut expression,
         neutral,
-        companion,
     } = expression_parts(&args.solve, &args.neutral)?;
+    // the built-in rig beside `--rig` (`--companion builtin`), set up as `capture` would
+    // set it up alone
+    let companion = if args.solve.rig.is_some() && args.solve.companion == "builtin" {
+        let builtin = SolveArgs {
+            rig: None,
+            landmark_map: None,
+            ..args.solve.clone()
+        };
+        let parts = expression_parts(&builtin, &args.neutral)?;
+        Some(Box::new((parts.expression, parts.neutral)))
+    } else {
+        None
+    };
     let method = expression.method;
     if args.mesh_points == "all" && args.landmarks == facecap_pipeline::FrontEnd::Mesh && method == Method::Exact3d {
         expression.dense = Some(dense_points(&rig_mesh, &map, args.mesh_point_weight)?);
@@ -703,19 +701,8 @@ fn capture_one(
             max: args.sheet_frames.max(1),
         },
     )?;
-    let mut companion_note = serde_json::Value::Null;
     if let Some(c) = setup.companion.as_deref() {
-        let shared = facecap_pipeline::expression::shared_solved_shapes(&setup.expression, &c.0).len();
-        if !calibrate {
-            companion_note = json!({"skipped": "no whole-clip neutral calibration (--neutral none)"});
-        } else if shared < facecap_pipeline::expression::MIN_COMPANION_SHAPES {
-            companion_note = json!({"skipped": format!(
-                "the rig shares {shared} solved shapes with the built-in rig (by ARKit name); at least {} are needed",
-                facecap_pipeline::expression::MIN_COMPANION_SHAPES
-            )});
-        } else {
-            solve = solve.with_companion("built-in default rig", &c.0, &c.1 as &dyn NeutralCalibration)?;
-        }
+        solve = solve.with_companion("built-in default rig", &c.0, &c.1 as &dyn NeutralCalibration)?;
     }
     let mut muscles = setup
         .muscles
@@ -883,7 +870,7 @@ fn capture_one(
         "animation_fps": fps,
         "truth": truth,
         "neutral_calibration": result.neutral_report,
-        "companion": if result.companion.is_null() { companion_note } else { result.companion.clone() },
+        "companion": result.companion,
         "solve_points": {
             "landmarks": setup.expression.rig.num_mapped(),
             "dense": setup.expression.dense.as_ref().map_or(0, |d| d.len()),

@@ -216,13 +216,11 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     )?;
     // the built-in rig beside `--rig` (`--companion builtin`), with its own priors and
     // neutral calibration, as `capture`
-    let companion = match (&args.rig, args.companion.as_str(), hook.active()) {
-        (Some(_), "builtin", true) => {
+    let companion = match (&args.rig, args.companion.as_str()) {
+        (Some(_), "builtin") => {
             let (mesh, map) = crate::default_rig::default_rig()?;
             let rig = BlendshapeRig::from_morph_mesh(mesh, &map, "built-in default rig")?;
-            let (c, hook) = solve_setup(rig, neutral, method, objective);
-            let shared = facecap_pipeline::expression::shared_solved_shapes(&setup, &c).len();
-            (shared >= facecap_pipeline::expression::MIN_COMPANION_SHAPES).then_some((c, hook))
+            Some(solve_setup(rig, neutral, method, objective))
         }
         _ => None,
     };

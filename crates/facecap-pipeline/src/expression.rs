@@ -158,7 +158,8 @@ pub struct ExpressionResult {
     pub failures: Vec<(u64, String)>,
     /// Frames solved with the dense points ([`ExpressionSetup::dense`]) observed.
     pub dense_frames: u64,
-    /// What the companion rig did (`null` without one, [`ExpressionSink::with_companion`]).
+    /// What the companion rig did, or why it was skipped (`null` without one,
+    /// [`ExpressionSink::with_companion`]).
     pub companion: serde_json::Value,
 }
 
@@ -241,6 +242,8 @@ pub struct ExpressionSink<'a> {
 /// and the shapes averaged, `(index in this rig, index in the companion)`.
 struct Companion<'a> {
     sink: Box<ExpressionSink<'a>>,
+    /// The companion's whole-clip neutral calibration.
+    calibration: &'a dyn NeutralCalibration,
     pairs: Vec<(usize, usize)>,
     /// The companion rig's name (for `summary.json`).
     label: String,
@@ -673,11 +676,12 @@ impl<'a> ExpressionSink<'a> {
     /// errors are partly independent: on the shared clips the ICT rig with the built-in
     /// rig as companion follows MediaPipe's scores better than either alone
     /// (docs/expressions.md, "The built-in rig as a companion"). Used where the whole clip
-    /// is solved before it is written (with a whole-clip `calibration` in [`Self::create`]);
-    /// a sink that solves as frames arrive ignores it.
+    /// is solved before it is written (with a whole-clip `calibration` in [`Self::create`]).
+    /// Without one, or with fewer than [`MIN_COMPANION_SHAPES`] shared shapes, the
+    /// companion is skipped and [`ExpressionResult::companion`] says why.
     ///
     /// # Errors
-    /// Fewer than [`MIN_COMPANION_SHAPES`] shared shapes, or what [`Self::create`] fails with.
+    /// What [`Self::create`] fails with.
     pub fn with_companion(
         mut self,
         label: &str,
@@ -685,16 +689,25 @@ impl<'a> ExpressionSink<'a> {
         calibration: &'a dyn NeutralCalibration,
     ) -> Result<Self> {
         let pairs = shared_solved_shapes(self.setup, setup);
-        if pairs.len() < MIN_COMPANION_SHAPES {
-            return Err(Error::invalid(
-                "companion rig",
-                format!("{} shapes shared", pairs.len()),
-                format!("at least {MIN_COMPANION_SHAPES} shapes both rigs solve, matched by ARKit name"),
-            ));
+        let skipped = if self.calibration.is_none() {
+            Some("no whole-clip neutral calibration (--neutral none)".to_string())
+        } else if pairs.len() < MIN_COMPANION_SHAPES {
+            Some(format!(
+                "the rig shares {} solved shapes with the {label} (by ARKit name); at least \
+                 {MIN_COMPANION_SHAPES} are needed",
+                pairs.len()
+            ))
+        } else {
+            None
+        };
+        if let Some(why) = skipped {
+            self.result.companion = serde_json::json!({ "skipped": why });
+            return Ok(self);
         }
         let sink = Self::create_inner(None, setup, self.camera, Some(calibration), FrameImages::None)?;
         self.companion = Some(Companion {
             sink: Box::new(sink),
+            calibration,
             pairs,
             label: label.to_string(),
         });
@@ -1179,14 +1192,7 @@ impl Sink for ExpressionSink<'_> {
         let faces = std::mem::take(&mut self.buffered);
         let (mut solved, sv) = self.solve_clip(cal, &faces)?;
         if let Some(c) = self.companion.as_mut() {
-            let Some(c_cal) = c.sink.calibration else {
-                return Err(Error::invalid(
-                    "companion rig",
-                    "no calibration",
-                    "a whole-clip calibration",
-                ));
-            };
-            let (other, _) = c.sink.solve_clip(c_cal, &faces)?;
+            let (other, _) = c.sink.solve_clip(c.calibration, &faces)?;
             let averaged = average_shared(&mut solved, &other, &c.pairs);
             let names: Vec<&str> = c.pairs.iter().map(|&(i, _)| self.result.names[i].as_str()).collect();
             self.result.companion = serde_json::json!({
