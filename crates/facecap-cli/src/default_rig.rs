@@ -186,16 +186,20 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
     };
     match name {
         "jawOpen" => {
-            // Jaw rotates down: chin moves most, jaw angle points little. Chin 2.4 cm, lower
-            // lip 2.25 cm at 1 (a wide open mouth; at 1.6 / 1.5 cm a yawn pinned the weight
-            // and pushed the rest into mouthLowerDown, docs/expressions.md "The neutral mouth").
+            // Jaw rotates down: chin moves most, jaw angle points little. Chin 2.4 cm at 1 (a
+            // wide open mouth; at 1.6 cm a yawn pinned the weight, docs/expressions.md "The
+            // neutral mouth"). The lower lip stretches over the teeth and moves further than
+            // the chin, as in ICT-FaceKit's jawOpen (lip middle 1.25x the chin, the points
+            // beside it 0.94x, the corners 0.46x): middle 2.7, beside 2.0, corners 1.0 cm.
+            // With the lip at 2.25 / 1.5 / 0.75 cm the rest of a yawn went to mouthLowerDown,
+            // pinned at 1 on 26 % of liveportrait_d18 (docs/expressions.md "The jaw's lower lip").
             for i in 2..=14usize {
                 let w = (1.0 - (i as f64 - 8.0).abs() / 6.5).max(0.0);
                 set(&[i], Vector3::new(0.0, -2.4 * w, -0.6 * w));
             }
-            set(&[56, 57, 58, 65, 66, 67], Vector3::new(0.0, -2.25, -0.45));
-            set(&[55, 59], Vector3::new(0.0, -1.5, -0.3));
-            set(&[48, 54, 60, 64], Vector3::new(0.0, -0.75, -0.15));
+            set(&[56, 57, 58, 65, 66, 67], Vector3::new(0.0, -2.7, -0.54));
+            set(&[55, 59], Vector3::new(0.0, -2.0, -0.4));
+            set(&[48, 54, 60, 64], Vector3::new(0.0, -1.0, -0.2));
         }
         "mouthSmileLeft" | "mouthSmileRight" => {
             let (s, corner, inner, near) = if name.ends_with("Left") {
@@ -668,6 +672,10 @@ mod tests {
         let jaw = &rig.targets[0];
         assert!((jaw.deltas[lm(8)].y + 2.4).abs() < 1e-5);
         assert!(jaw.deltas[lm(19)].norm() < 1e-6);
+        // the lower lip's middle moves further than the chin, its corners about half as far
+        // (ICT-FaceKit's proportions; smaller lip motion pinned mouthLowerDown in a yawn)
+        assert!(jaw.deltas[lm(57)].y < jaw.deltas[lm(8)].y - 0.2);
+        assert!((jaw.deltas[lm(54)].y / jaw.deltas[lm(8)].y - 0.42).abs() < 0.05);
         for v in [0usize, 37, 267, 13, 82, 312] {
             assert!(
                 jaw.deltas[v].norm() < 0.2,
