@@ -33,6 +33,7 @@ import csv
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 
@@ -97,12 +98,6 @@ def mean(xs):
     return sum(xs) / len(xs) if xs else float("nan")
 
 
-def median(xs):
-    v = sorted(xs)
-    n = len(v)
-    return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
-
-
 def std(xs):
     m = mean(xs)
     return math.sqrt(sum((x - m) ** 2 for x in xs) / len(xs)) if xs else 0.0
@@ -137,7 +132,7 @@ def evaluate_clip(weights_csv, ref_csv):
         rv = [rc[f] for f in frames]
         ov = [oc[f] for f in frames]
         rs = std(rv)
-        offset = median(ov) - median(rv)
+        offset = statistics.median(ov) - statistics.median(rv)
         pinned = sum(1 for o, r in zip(ov, rv) if o >= BOUND and r < 0.5) / len(frames)
         shapes[b] = {
             "r": pearson(ov, rv) if rs >= MIN_REF_STD else None,
