@@ -820,3 +820,142 @@ fn image_folder_errors_name_folder_file_and_frame() {
         .to_string();
     assert!(e.contains("0.png") && e.contains("0 bytes"), "{e}");
 }
+
+/// `ffprobe -show_entries stream=nb_frames` of the first video stream (`None` for `N/A`).
+fn ffprobe_nb_frames(ffprobe: &Path, file: &Path) -> Option<u64> {
+    let out = std::process::Command::new(ffprobe)
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "V:0",
+            "-show_entries",
+            "stream=nb_frames",
+        ])
+        .args(["-of", "default=noprint_wrappers=1:nokey=1"])
+        .arg(file)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    String::from_utf8_lossy(&out.stdout).lines().next()?.trim().parse().ok()
+}
+
+/// The MP4 box reader's frame count is ffprobe's `nb_frames` wherever it gives one (the
+/// shared clips, MP4 / MOV / M4V / 3GP files with audio first, B-frames, an edit list,
+/// a `moov` at the front), and it gives none for fragmented MP4 and other containers.
+#[test]
+fn mp4_frame_count_equals_ffprobe() {
+    let test = "mp4_frame_count_equals_ffprobe";
+    let Some(ffmpeg) = ffmpeg_or_skip(test) else { return };
+    let Some(ffprobe) = locate_ffprobe(&ffmpeg) else {
+        facecap_core::paths::skip(&format!("{test}: ffprobe not found"));
+        return;
+    };
+    let count = facecap_io::video::mp4::video_frame_count;
+    for name in [
+        "liveportrait_d3.mp4",
+        "liveportrait_d6.mp4",
+        "liveportrait_d9.mp4",
+        "liveportrait_d18.mp4",
+        "sadtalker_WDA_KatieHill_000.mp4",
+    ] {
+        let Some(path) = facecap_core::paths::shared_data_file(test, &format!("videos/{name}")) else {
+            continue;
+        };
+        let n = count(&path);
+        assert!(n.is_some(), "{name}: no count");
+        assert_eq!(n, ffprobe_nb_frames(&ffprobe, &path), "{name}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let make = |name: &str, args: &[&str]| -> PathBuf {
+        let p = dir.path().join(name);
+        let ok = std::process::Command::new(&ffmpeg)
+            .args([
+                "-nostdin",
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=64x48:rate=25",
+            ])
+            .args(["-f", "lavfi", "-i", "sine=frequency=440:sample_rate=8000"])
+            .args(args)
+            .arg(&p)
+            .stdin(std::process::Stdio::null())
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "making {name}");
+        p
+    };
+    let h264 = ["-c:v", "libx264", "-bf", "2", "-g", "12"];
+    let cases: Vec<(PathBuf, bool)> = vec![
+        (
+            make(
+                "plain.mp4",
+                &[&["-t", "2", "-map", "1:a", "-map", "0:v"], &h264[..]].concat(),
+            ),
+            true,
+        ),
+        (
+            make(
+                "front.mp4",
+                &[&["-frames:v", "37", "-movflags", "+faststart"], &h264[..]].concat(),
+            ),
+            true,
+        ),
+        (make("mpeg4.mov", &["-frames:v", "23", "-c:v", "mpeg4"]), true),
+        (
+            make("clip.m4v", &[&["-frames:v", "11", "-an"], &h264[..]].concat()),
+            true,
+        ),
+        (
+            make(
+                "phone.3gp",
+                &[
+                    "-frames:v",
+                    "9",
+                    "-s",
+                    "176x144",
+                    "-c:v",
+                    "mpeg4",
+                    "-c:a",
+                    "aac",
+                    "-ar",
+                    "8000",
+                ],
+            ),
+            true,
+        ),
+        (
+            make(
+                "frag.mp4",
+                &[&["-frames:v", "30", "-movflags", "frag_keyframe+empty_moov"], &h264[..]].concat(),
+            ),
+            false,
+        ),
+        (make("other.mkv", &["-frames:v", "10", "-c:v", "mpeg4"]), false),
+        (make("other.avi", &["-frames:v", "10", "-c:v", "mpeg4"]), false),
+    ];
+    // an edit list: cut without re-encoding, starting between keyframes
+    let cut = dir.path().join("cut.mp4");
+    let ok = std::process::Command::new(&ffmpeg)
+        .args(["-nostdin", "-v", "error", "-ss", "0.5", "-i"])
+        .arg(&cases[0].0)
+        .args(["-c", "copy"])
+        .arg(&cut)
+        .stdin(std::process::Stdio::null())
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    for (p, counted) in cases.iter().cloned().chain([(cut, true)]) {
+        let ours = count(&p);
+        assert_eq!(ours.is_some(), counted, "{}: {ours:?}", p.display());
+        if let Some(n) = ours {
+            assert_eq!(Some(n), ffprobe_nb_frames(&ffprobe, &p), "{}", p.display());
+        }
+    }
+}

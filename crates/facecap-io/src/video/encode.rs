@@ -358,30 +358,19 @@ impl FfmpegEncoder {
 /// Checks that `path` is a whole MP4: top-level boxes (32- or 64-bit sizes) that tile the
 /// file exactly, `moov` (the index) and `mdat` (the samples) among them.
 fn check_mp4_boxes(path: &Path) -> std::result::Result<(), String> {
-    use std::io::{Read, Seek, SeekFrom};
-    let mut f = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    use super::mp4::{box_at, BadBox};
+    let f = std::fs::File::open(path).map_err(|e| e.to_string())?;
     let len = f.metadata().map_err(|e| e.to_string())?.len();
+    let mut f = std::io::BufReader::with_capacity(64, f);
     let (mut pos, mut moov, mut mdat) = (0u64, false, false);
     while pos < len {
-        let mut h = [0u8; 16];
-        f.seek(SeekFrom::Start(pos)).map_err(|e| e.to_string())?;
-        f.read_exact(&mut h[..8])
-            .map_err(|_| format!("box header cut at byte {pos} of {len}"))?;
-        let size = match u32::from_be_bytes([h[0], h[1], h[2], h[3]]) {
-            0 => len - pos,
-            1 => {
-                f.read_exact(&mut h[8..16])
-                    .map_err(|_| format!("box header cut at byte {pos} of {len}"))?;
-                u64::from_be_bytes([h[8], h[9], h[10], h[11], h[12], h[13], h[14], h[15]])
-            }
-            s => u64::from(s),
-        };
-        if size < 8 || size > len - pos {
-            return Err(format!("box at byte {pos} claims {size} bytes, {} left", len - pos));
-        }
-        moov |= &h[4..8] == b"moov";
-        mdat |= &h[4..8] == b"mdat";
-        pos += size;
+        let b = box_at(&mut f, pos, len).map_err(|e| match e {
+            BadBox::Cut => format!("box header cut at byte {pos} of {len}"),
+            BadBox::Overrun { size } => format!("box at byte {pos} claims {size} bytes, {} left", len - pos),
+        })?;
+        moov |= &b.kind == b"moov";
+        mdat |= &b.kind == b"mdat";
+        pos = b.end;
     }
     match (moov, mdat) {
         (true, true) => Ok(()),

@@ -606,8 +606,15 @@ impl FfmpegSource {
             tap: None,
             scaler: super::small::PlaneScaler::default(),
         };
-        // The frame count comes from ffprobe, started now so it runs while ffmpeg starts.
-        let mut probe = ProbeGuard(if opts.probe_frame_count {
+        // The frame count: read from an MP4/MOV file's boxes where they say it plainly
+        // (the same number ffprobe reports, without a process), else from ffprobe,
+        // started now so it runs while ffmpeg starts.
+        let boxed_count = if opts.probe_frame_count {
+            super::mp4::video_frame_count(path)
+        } else {
+            None
+        };
+        let mut probe = ProbeGuard(if opts.probe_frame_count && boxed_count.is_none() {
             locate_ffprobe(&ffmpeg).and_then(|p| spawn_frame_count_probe(&p, path))
         } else {
             None
@@ -639,7 +646,7 @@ impl FfmpegSource {
         let Some(first) = first else {
             return Err(src.open_failure());
         };
-        let frame_count = probe.0.take().and_then(frame_count_of);
+        let frame_count = boxed_count.or_else(|| probe.0.take().and_then(frame_count_of));
         if first.width == 0 || first.height == 0 {
             return Err(src.decode_err(None, format!("ffmpeg reports a {}x{} frame", first.width, first.height)));
         }

@@ -55,6 +55,7 @@ use facecap_core::error::{Error, Result};
 pub mod encode;
 pub mod ffmpeg;
 pub mod folder;
+pub mod mp4;
 pub mod small;
 pub mod y4m;
 pub mod yuv;
