@@ -166,6 +166,7 @@ pub fn calibrate_subject(
             "method": "multi-frame 3D offset field (resting frames at zero expression)",
             "frames_used": fit.frames_used,
             "rest_frames": fit.rest_frames,
+            "mouth_frames": fit.mouth_frames,
             "iterations": params.iterations,
             "mean_offset_rig_units": fit.mean_offset,
             "mean_expression_before": fit.mean_expression_before,

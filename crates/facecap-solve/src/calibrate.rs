@@ -51,6 +51,7 @@ use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
 /// | `identity_ridge` | 1.0 | ridge on the identity coefficients (unit-variance modes), (% IOD)^2 | `[0, 1e9]` |
 /// | `residual_offsets` | true | with identity modes, also fit the offset field on what they leave | |
 /// | `mouth_closed` | (0.0, 0.3) | the mouth and chin points' neutral is fitted on the frames whose mouth opening lies between these quantiles | as `eye_open` |
+/// | `mouth_typical` | 0.5 | of those closed-mouth frames, the share whose solved expression lies closest to the clip's typical one | (0, 1], or `None`: all of them |
 /// | `eye_open` | (0.5, 0.95) | the lid points' neutral is fitted on the frames whose eye opening lies between these quantiles | `0 <= lo < hi <= 1`, or `None`: the resting frames |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SubjectParams {
@@ -85,6 +86,17 @@ pub struct SubjectParams {
     /// liveportrait_d6: `jawOpen` 0.00 where MediaPipe's is 0.15-0.20; docs/expressions.md,
     /// "The neutral mouth"). `None` fits the mouth on the resting frames like the rest.
     pub mouth_closed: Option<(f64, f64)>,
+    /// Of the closed-mouth frames ([`SubjectParams::mouth_closed`]), the share kept for the
+    /// mouth and chin points in each pass: those whose solved weights lie closest (L1) to
+    /// the clip's typical expression, the per-shape median over the sampled frames. Lips
+    /// are also together in a smile, a pucker or a press, and a clip that holds one for a
+    /// while put it into the neutral mouth: every resting frame then read as its opposite
+    /// (measured on the synthetic clip, whose smile covers 40 % of the frames: resting
+    /// `mouthFrown` 0.15-0.28, smile peak 0.47 for 0.7; docs/expressions.md, "The neutral
+    /// mouth's frames"). The median is the expression most frames share, whatever the
+    /// current neutral, so the choice does not inherit the neutral's own bias. `None`
+    /// keeps every closed-mouth frame.
+    pub mouth_typical: Option<f64>,
 }
 
 impl Default for SubjectParams {
@@ -99,6 +111,7 @@ impl Default for SubjectParams {
             residual_offsets: true,
             eye_open: Some((0.5, 0.95)),
             mouth_closed: Some((0.0, 0.3)),
+            mouth_typical: Some(0.5),
         }
     }
 }
@@ -112,6 +125,9 @@ impl SubjectParams {
         check_range("alpha_xy", self.alpha_xy, 0.0, 1e9)?;
         check_range("alpha_z", self.alpha_z, 0.0, 1e9)?;
         check_range("identity_ridge", self.identity_ridge, 0.0, 1e9)?;
+        if let Some(q) = self.mouth_typical {
+            check_range("mouth_typical", q, 1e-6, 1.0)?;
+        }
         for (name, q) in [("eye_open", self.eye_open), ("mouth_closed", self.mouth_closed)] {
             if let Some((lo, hi)) = q {
                 check_range(name, lo, 0.0, 1.0)?;
@@ -143,6 +159,9 @@ pub struct SubjectFit {
     pub frames_used: usize,
     /// Resting frames of the last pass (the ones the offsets were fitted on).
     pub rest_frames: usize,
+    /// Frames the mouth and chin points were fitted on in the last pass (closed lips,
+    /// typical expression); `None` when they were fitted on the resting frames.
+    pub mouth_frames: Option<usize>,
     /// Mean offset length (rig units).
     pub mean_offset: f64,
     /// Mean total expression `sum_i e_i` of the solved frames before and after calibration.
@@ -215,6 +234,32 @@ fn within_quantiles(values: &[f64], (lo, hi): (f64, f64)) -> Vec<bool> {
     let q = |t: f64| sorted[((sorted.len() - 1) as f64 * t).round() as usize];
     let (a, b) = (q(lo), q(hi));
     values.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
+}
+
+/// Of the frames marked in `among`, the `share` whose solved weights lie closest (L1) to
+/// the per-shape median of every solved frame's weights (the clip's typical expression);
+/// unsolved frames are never taken.
+fn typical_among(among: &[bool], solved: &[Option<SolvedSample>], share: f64) -> Vec<bool> {
+    let weights: Vec<&Vec<f64>> = solved.iter().flatten().map(|(_, w, _)| w).collect();
+    let n = weights.first().map_or(0, |w| w.len());
+    let mut column = Vec::with_capacity(weights.len());
+    let median: Vec<f64> = (0..n)
+        .map(|k| {
+            column.clear();
+            column.extend(weights.iter().filter_map(|w| w.get(k).copied()));
+            column.sort_by(f64::total_cmp);
+            column.get(column.len() / 2).copied().unwrap_or(0.0)
+        })
+        .collect();
+    let distance: Vec<f64> = among
+        .iter()
+        .zip(solved)
+        .map(|(&m, s)| match s {
+            Some((_, w, _)) if m => w.iter().zip(&median).map(|(a, b)| (a - b).abs()).sum(),
+            _ => f64::NAN,
+        })
+        .collect();
+    within_quantiles(&distance, (0.0, share))
 }
 
 /// The mouth's points (iBUG), fitted on the closed-mouth frames.
@@ -337,6 +382,7 @@ pub fn fit_subject_with_identity(
     };
     let mut before = f64::NAN;
     let mut rest_frames = 0;
+    let mut mouth_used = None;
     for pass in 0..params.iterations {
         let solver = build(&current)?;
         let solved = solve_all(&solver, &sample);
@@ -344,6 +390,13 @@ pub fn fit_subject_with_identity(
             .iter()
             .map(|s| s.as_ref().map_or(f64::INFINITY, |(_, w, _)| w.iter().sum()))
             .collect();
+        let pass_mouth = match (&mouth_frames, params.mouth_typical) {
+            (Some(closed), Some(share)) => Some(typical_among(closed, &solved, share)),
+            (closed, _) => closed.clone(),
+        };
+        if let Some(m) = &pass_mouth {
+            mouth_used = Some(m.iter().zip(&solved).filter(|(t, s)| **t && s.is_some()).count());
+        }
         let finite: Vec<f64> = energy.iter().copied().filter(|e| e.is_finite()).collect();
         if finite.is_empty() {
             return Err(Error::Input {
@@ -371,7 +424,7 @@ pub fn fit_subject_with_identity(
             // the landmarks this frame informs
             let takes = |l: usize| match eye_of(l).and_then(|e| eye_frames[e].as_ref()) {
                 Some(open) => open[fi],
-                None => match &mouth_frames {
+                None => match &pass_mouth {
                     Some(closed) if in_mouth(l) => closed[fi],
                     _ => rest,
                 },
@@ -527,6 +580,7 @@ pub fn fit_subject_with_identity(
         identity: beta,
         frames_used: sample.len(),
         rest_frames,
+        mouth_frames: mouth_used,
         mean_expression_before: before,
         mean_expression_after: if after.is_empty() {
             f64::NAN
@@ -723,6 +777,66 @@ mod tests {
         assert!(closed < 0.25 * all, "lower lip offset {closed}, all frames {all}");
     }
 
+    /// A smile held with the lips together on 4 frames in 10 (the mouth corners out and
+    /// up): the closed-mouth frames include it, and only the typical-expression choice
+    /// keeps it out of the neutral mouth.
+    #[test]
+    fn a_held_smile_stays_out_of_the_neutral_mouth() {
+        let rig = BlendshapeRig::synthetic(6, 11);
+        let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
+        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+        let width = (0..3)
+            .map(|c| (rig.neutral[[48, c]] - rig.neutral[[54, c]]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let frames: Vec<Landmarks68> = (0..60)
+            .map(|f| {
+                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.2 * (f as f64 * 0.2).sin(), 0.0));
+                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(0.0, 0.0, 50.0));
+                let smile = if f % 10 < 4 {
+                    0.1 + 0.05 * (f as f64).sin().abs()
+                } else {
+                    0.0
+                };
+                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
+                    .map(|l| {
+                        let mut x = rig.landmark(l, &[0.0; 6]);
+                        // model +X is the subject's left, +Y up
+                        let side = match l {
+                            48 | 60 => -1.0,
+                            54 | 64 => 1.0,
+                            _ => 0.0,
+                        };
+                        x.x += side * smile * width;
+                        x.y += side.abs() * 0.5 * smile * width;
+                        let p = pose.project(&camera, &x).unwrap();
+                        (p.x, p.y)
+                    })
+                    .collect();
+                Landmarks68::from_slice(&pts).unwrap()
+            })
+            .collect();
+        let fit = |mouth_typical| {
+            let params = SubjectParams {
+                mouth_typical,
+                ..SubjectParams::default()
+            };
+            let priors = ShapePriors::neutral(6);
+            fit_subject(&rig, camera, ObjectiveParams::default(), &priors, &frames, &params).unwrap()
+        };
+        let corner_shift = |f: &SubjectFit| [48, 54, 60, 64].iter().map(|&l| f.offsets[l].norm()).sum::<f64>() / 4.0;
+        let (typical, every) = (fit(Some(0.5)), fit(None));
+        let (t, a) = (corner_shift(&typical), corner_shift(&every));
+        assert!(
+            t < 0.01 * width,
+            "corner offset {t} (mouth width {width}, every closed frame {a})"
+        );
+        assert!(t < 0.25 * a, "corner offset {t}, every closed frame {a}");
+        // about half of the closed-mouth frames (0.3 of 60)
+        let (t, a) = (typical.mouth_frames.unwrap(), every.mouth_frames.unwrap());
+        assert!((17..=19).contains(&a) && (a / 2..=a / 2 + 1).contains(&t), "{t} of {a}");
+    }
+
     /// A subject built from identity modes: the joint multi-frame fit recovers the
     /// coefficients and, with the offsets off, the neutral lies in the modes' span.
     #[test]
@@ -841,6 +955,13 @@ mod tests {
                 ..SubjectParams::default()
             };
             assert!(bad.validate().is_err(), "{eye_open:?}");
+        }
+        for share in [0.0, -0.5, 1.5, f64::NAN] {
+            let bad = SubjectParams {
+                mouth_typical: Some(share),
+                ..SubjectParams::default()
+            };
+            assert!(bad.validate().is_err(), "{share}");
         }
     }
 }
