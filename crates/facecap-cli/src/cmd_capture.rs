@@ -294,9 +294,16 @@ pub(crate) struct ExpressionParts {
     pub(crate) rig_mesh: MorphMesh,
     pub(crate) map: LandmarkMap,
     pub(crate) rig_name: String,
-    pub(crate) renderer: facecap_pipeline::RigRenderer,
     pub(crate) expression: ExpressionSetup,
     pub(crate) neutral: NeutralHook,
+}
+
+impl ExpressionParts {
+    /// The renderer of the rig's mesh (for the preview, the report and the live window;
+    /// built only where something is drawn: the companion rig never is).
+    pub(crate) fn renderer(&self) -> anyhow::Result<facecap_pipeline::RigRenderer> {
+        Ok(facecap_pipeline::RigRenderer::new(&self.rig_mesh, Some(&self.map))?)
+    }
 }
 
 pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Result<ExpressionParts> {
@@ -329,7 +336,6 @@ pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Resu
     if solve.contour == "fixed" {
         rig.contour = None;
     }
-    let renderer = facecap_pipeline::RigRenderer::new(&rig_mesh, Some(&map))?;
     let objective = ObjectiveParams {
         temporal,
         ..ObjectiveParams::default()
@@ -340,7 +346,6 @@ pub(crate) fn expression_parts(solve: &SolveArgs, neutral: &str) -> anyhow::Resu
         rig_mesh,
         map,
         rig_name,
-        renderer,
         expression: ExpressionSetup {
             rig,
             method,
@@ -363,14 +368,15 @@ pub(crate) fn build_setup(args: &Args) -> anyhow::Result<Setup> {
         (None, true) => Some(ObjSpace::Model),
         (None, false) => None,
     };
+    let parts = expression_parts(&args.solve, &args.neutral)?;
+    let renderer = parts.renderer()?;
     let ExpressionParts {
         rig_mesh,
         map,
         rig_name,
-        renderer,
         mut expression,
         neutral,
-    } = expression_parts(&args.solve, &args.neutral)?;
+    } = parts;
     // the built-in rig beside `--rig` (`--companion builtin`), set up as `capture` would
     // set it up alone
     let companion = if args.solve.rig.is_some() && args.solve.companion == "builtin" {

@@ -221,6 +221,7 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
         solve
     };
     let window = !args.no_window && crate::live_window::display_available();
+    let renderer = if window { Some(parts.renderer()?) } else { None };
     if !args.no_window && !window {
         crate::out::info("no display (DISPLAY and WAYLAND_DISPLAY unset): running without the preview window");
     }
@@ -267,8 +268,8 @@ pub fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     ));
     let started = std::time::Instant::now();
     let run = std::thread::scope(|scope| -> anyhow::Result<_> {
-        let win = window.then(|| {
-            let (renderer, c) = (&parts.renderer, controls.clone());
+        let win = renderer.as_ref().map(|renderer| {
+            let c = controls.clone();
             scope.spawn(move || crate::live_window::run_window(preview_rx, renderer, &c))
         });
         let result = {
