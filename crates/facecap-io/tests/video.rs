@@ -7,7 +7,7 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use facecap_core::Error;
-use facecap_io::video::ffmpeg::{locate_ffmpeg, locate_ffprobe, FfmpegSource};
+use facecap_io::video::ffmpeg::{locate_ffmpeg, locate_ffprobe, probe_frame_count, FfmpegSource};
 use facecap_io::video::small::ColourTap;
 use facecap_io::video::y4m::write_gray_y4m;
 use facecap_io::video::{open_source, Frame, FrameSelect, FrameSource, Luma, SourceKind, SourceOptions};
@@ -30,6 +30,14 @@ fn ffmpeg_or_skip(test: &str) -> Option<PathBuf> {
 
 /// Decoded frames: (index, timestamp, grey bytes).
 type Decoded = Vec<(u64, f64, Vec<u8>)>;
+
+/// An ffmpeg command whose first input is its 64x48 test pattern at `rate` frames/s.
+fn testsrc(ffmpeg: &Path, rate: u32) -> std::process::Command {
+    let mut c = std::process::Command::new(ffmpeg);
+    c.args(["-nostdin", "-v", "error", "-f", "lavfi", "-i"])
+        .arg(format!("testsrc=size=64x48:rate={rate}"));
+    c
+}
 
 /// Decodes a whole source on a helper thread; panics on a hang.
 fn decode_all(path: PathBuf, opts: SourceOptions) -> (Decoded, Option<Error>) {
@@ -226,16 +234,7 @@ fn full_range_video_keeps_its_codes() {
     let Some(ffmpeg) = ffmpeg_or_skip(test) else { return };
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("full.avi");
-    let made = std::process::Command::new(&ffmpeg)
-        .args([
-            "-nostdin",
-            "-v",
-            "error",
-            "-f",
-            "lavfi",
-            "-i",
-            "testsrc=size=64x48:rate=5",
-        ])
+    let made = testsrc(&ffmpeg, 5)
         .args(["-frames:v", "2", "-pix_fmt", "yuvj420p", "-c:v", "mjpeg", "-q:v", "2"])
         .arg(&path)
         .stdin(std::process::Stdio::null())
@@ -821,26 +820,6 @@ fn image_folder_errors_name_folder_file_and_frame() {
     assert!(e.contains("0.png") && e.contains("0 bytes"), "{e}");
 }
 
-/// `ffprobe -show_entries stream=nb_frames` of the first video stream (`None` for `N/A`).
-fn ffprobe_nb_frames(ffprobe: &Path, file: &Path) -> Option<u64> {
-    let out = std::process::Command::new(ffprobe)
-        .args([
-            "-v",
-            "error",
-            "-select_streams",
-            "V:0",
-            "-show_entries",
-            "stream=nb_frames",
-        ])
-        .args(["-of", "default=noprint_wrappers=1:nokey=1"])
-        .arg(file)
-        .stdin(std::process::Stdio::null())
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    String::from_utf8_lossy(&out.stdout).lines().next()?.trim().parse().ok()
-}
-
 /// The MP4 box reader's frame count is ffprobe's `nb_frames` wherever it gives one (the
 /// shared clips, MP4 / MOV / M4V / 3GP files with audio first, B-frames, an edit list,
 /// a `moov` at the front), and it gives none for fragmented MP4 and other containers.
@@ -865,21 +844,12 @@ fn mp4_frame_count_equals_ffprobe() {
         };
         let n = count(&path);
         assert!(n.is_some(), "{name}: no count");
-        assert_eq!(n, ffprobe_nb_frames(&ffprobe, &path), "{name}");
+        assert_eq!(n, probe_frame_count(&ffprobe, &path), "{name}");
     }
     let dir = tempfile::tempdir().unwrap();
     let make = |name: &str, args: &[&str]| -> PathBuf {
         let p = dir.path().join(name);
-        let ok = std::process::Command::new(&ffmpeg)
-            .args([
-                "-nostdin",
-                "-v",
-                "error",
-                "-f",
-                "lavfi",
-                "-i",
-                "testsrc=size=64x48:rate=25",
-            ])
+        let ok = testsrc(&ffmpeg, 25)
             .args(["-f", "lavfi", "-i", "sine=frequency=440:sample_rate=8000"])
             .args(args)
             .arg(&p)
@@ -890,55 +860,35 @@ fn mp4_frame_count_equals_ffprobe() {
         assert!(ok, "making {name}");
         p
     };
-    let h264 = ["-c:v", "libx264", "-bf", "2", "-g", "12"];
-    let cases: Vec<(PathBuf, bool)> = vec![
+    // (name, ffmpeg options, H.264 with B-frames, counted from the boxes)
+    let specs: [(&str, &[&str], bool, bool); 8] = [
+        ("plain.mp4", &["-t", "2", "-map", "1:a", "-map", "0:v"], true, true),
+        ("front.mp4", &["-frames:v", "37", "-movflags", "+faststart"], true, true),
+        ("mpeg4.mov", &["-frames:v", "23", "-c:v", "mpeg4"], false, true),
+        ("clip.m4v", &["-frames:v", "11", "-an"], true, true),
         (
-            make(
-                "plain.mp4",
-                &[&["-t", "2", "-map", "1:a", "-map", "0:v"], &h264[..]].concat(),
-            ),
+            "phone.3gp",
+            &["-frames:v", "9", "-s", "176x144", "-c:v", "mpeg4", "-c:a", "aac"],
+            false,
             true,
         ),
         (
-            make(
-                "front.mp4",
-                &[&["-frames:v", "37", "-movflags", "+faststart"], &h264[..]].concat(),
-            ),
+            "frag.mp4",
+            &["-frames:v", "30", "-movflags", "frag_keyframe+empty_moov"],
             true,
-        ),
-        (make("mpeg4.mov", &["-frames:v", "23", "-c:v", "mpeg4"]), true),
-        (
-            make("clip.m4v", &[&["-frames:v", "11", "-an"], &h264[..]].concat()),
-            true,
-        ),
-        (
-            make(
-                "phone.3gp",
-                &[
-                    "-frames:v",
-                    "9",
-                    "-s",
-                    "176x144",
-                    "-c:v",
-                    "mpeg4",
-                    "-c:a",
-                    "aac",
-                    "-ar",
-                    "8000",
-                ],
-            ),
-            true,
-        ),
-        (
-            make(
-                "frag.mp4",
-                &[&["-frames:v", "30", "-movflags", "frag_keyframe+empty_moov"], &h264[..]].concat(),
-            ),
             false,
         ),
-        (make("other.mkv", &["-frames:v", "10", "-c:v", "mpeg4"]), false),
-        (make("other.avi", &["-frames:v", "10", "-c:v", "mpeg4"]), false),
+        ("other.mkv", &["-frames:v", "10", "-c:v", "mpeg4"], false, false),
+        ("other.avi", &["-frames:v", "10", "-c:v", "mpeg4"], false, false),
     ];
+    let h264 = ["-c:v", "libx264", "-bf", "2", "-g", "12"];
+    let cases: Vec<(PathBuf, bool)> = specs
+        .iter()
+        .map(|&(name, opts, b_frames, counted)| {
+            let codec: &[&str] = if b_frames { &h264 } else { &[] };
+            (make(name, &[opts, codec].concat()), counted)
+        })
+        .collect();
     // an edit list: cut without re-encoding, starting between keyframes
     let cut = dir.path().join("cut.mp4");
     let ok = std::process::Command::new(&ffmpeg)
@@ -955,7 +905,7 @@ fn mp4_frame_count_equals_ffprobe() {
         let ours = count(&p);
         assert_eq!(ours.is_some(), counted, "{}: {ours:?}", p.display());
         if let Some(n) = ours {
-            assert_eq!(Some(n), ffprobe_nb_frames(&ffprobe, &p), "{}", p.display());
+            assert_eq!(Some(n), probe_frame_count(&ffprobe, &p), "{}", p.display());
         }
     }
 }

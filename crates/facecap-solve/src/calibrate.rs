@@ -702,14 +702,7 @@ mod tests {
                 Landmarks68::from_slice(&pts.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>()).unwrap()
             })
             .collect();
-        let fit = |eye_open| {
-            let params = SubjectParams {
-                eye_open,
-                ..SubjectParams::default()
-            };
-            let priors = ShapePriors::neutral(6);
-            fit_subject(&rig, camera, ObjectiveParams::default(), &priors, &frames, &params).unwrap()
-        };
+        let fit = |eye_open| fit_plain(&rig, camera, &frames, |p| p.eye_open = eye_open);
         let lid_shift = |f: &SubjectFit| [37, 38, 43, 44].iter().map(|&l| f.offsets[l].norm()).sum::<f64>() / 4.0;
         let lid_gap = (0..3)
             .map(|c| (rig.neutral[[37, c]] - rig.neutral[[41, c]]).powi(2))
@@ -724,6 +717,53 @@ mod tests {
         assert!(open < 0.25 * all, "lid offset {open}, all frames {all}");
     }
 
+    /// [`fit_subject`] with the default objective and free priors on the 6-shape rig, and
+    /// the default parameters changed by `set`.
+    fn fit_plain(
+        rig: &BlendshapeRig,
+        camera: Intrinsics,
+        frames: &[Landmarks68],
+        set: impl FnOnce(&mut SubjectParams),
+    ) -> SubjectFit {
+        let mut params = SubjectParams::default();
+        set(&mut params);
+        let priors = ShapePriors::neutral(6);
+        fit_subject(rig, camera, ObjectiveParams::default(), &priors, frames, &params).unwrap()
+    }
+
+    /// Distance between two landmarks of the rig's neutral.
+    fn neutral_distance(rig: &BlendshapeRig, a: usize, b: usize) -> f64 {
+        (0..3)
+            .map(|c| (rig.neutral[[a, c]] - rig.neutral[[b, c]]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
+
+    /// 60 frames of the rig's neutral with the head turning left and right, each point
+    /// first moved by `edit(frame, landmark, point)` (model frame).
+    fn turning_frames(
+        rig: &BlendshapeRig,
+        camera: Intrinsics,
+        edit: impl Fn(usize, usize, &mut Point3<f64>),
+    ) -> Vec<Landmarks68> {
+        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
+        (0..60)
+            .map(|f| {
+                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.2 * (f as f64 * 0.2).sin(), 0.0));
+                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(0.0, 0.0, 50.0));
+                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
+                    .map(|l| {
+                        let mut x = rig.landmark(l, &[0.0; 6]);
+                        edit(f, l, &mut x);
+                        let p = pose.project(&camera, &x).unwrap();
+                        (p.x, p.y)
+                    })
+                    .collect();
+                Landmarks68::from_slice(&pts).unwrap()
+            })
+            .collect()
+    }
+
     /// Speech: the lips are apart on most frames (all of them resting by expression
     /// energy). The neutral mouth is fitted on the closed-mouth frames, so it stays closed;
     /// fitted on every resting frame it opens.
@@ -731,43 +771,20 @@ mod tests {
     fn talking_frames_do_not_open_the_neutral_mouth() {
         let rig = BlendshapeRig::synthetic(6, 11);
         let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
-        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
-        let lip_gap = (0..3)
-            .map(|c| (rig.neutral[[62, c]] - rig.neutral[[66, c]]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        let frames: Vec<Landmarks68> = (0..60)
-            .map(|f| {
-                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.2 * (f as f64 * 0.2).sin(), 0.0));
-                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(0.0, 0.0, 50.0));
-                // 7 of 10 frames talk: lower lip and chin down by up to 0.6 of a lip gap
-                let open = if f % 10 < 7 {
-                    0.3 + 0.3 * (f as f64 * 0.9).sin().abs()
-                } else {
-                    0.0
-                };
-                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
-                    .map(|l| {
-                        let mut x = rig.landmark(l, &[0.0; 6]);
-                        if [56, 57, 58, 65, 66, 67, 7, 8, 9].contains(&l) {
-                            // model +Y is up
-                            x.y -= open * lip_gap;
-                        }
-                        let p = pose.project(&camera, &x).unwrap();
-                        (p.x, p.y)
-                    })
-                    .collect();
-                Landmarks68::from_slice(&pts).unwrap()
-            })
-            .collect();
-        let fit = |mouth_closed| {
-            let params = SubjectParams {
-                mouth_closed,
-                ..SubjectParams::default()
+        let lip_gap = neutral_distance(&rig, 62, 66);
+        let frames = turning_frames(&rig, camera, |f, l, x| {
+            // 7 of 10 frames talk: lower lip and chin down by up to 0.6 of a lip gap
+            let open = if f % 10 < 7 {
+                0.3 + 0.3 * (f as f64 * 0.9).sin().abs()
+            } else {
+                0.0
             };
-            let priors = ShapePriors::neutral(6);
-            fit_subject(&rig, camera, ObjectiveParams::default(), &priors, &frames, &params).unwrap()
-        };
+            if [56, 57, 58, 65, 66, 67, 7, 8, 9].contains(&l) {
+                // model +Y is up
+                x.y -= open * lip_gap;
+            }
+        });
+        let fit = |mouth_closed| fit_plain(&rig, camera, &frames, |p| p.mouth_closed = mouth_closed);
         let lip_shift = |f: &SubjectFit| [65, 66, 67].iter().map(|&l| f.offsets[l].norm()).sum::<f64>() / 3.0;
         let (closed, all) = (lip_shift(&fit(Some((0.0, 0.3)))), lip_shift(&fit(None)));
         assert!(
@@ -784,46 +801,23 @@ mod tests {
     fn a_held_smile_stays_out_of_the_neutral_mouth() {
         let rig = BlendshapeRig::synthetic(6, 11);
         let camera = Intrinsics::new(800.0, 800.0, 320.0, 240.0).unwrap();
-        let facing = UnitQuaternion::from_scaled_axis(Vector3::new(std::f64::consts::PI, 0.0, 0.0));
-        let width = (0..3)
-            .map(|c| (rig.neutral[[48, c]] - rig.neutral[[54, c]]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        let frames: Vec<Landmarks68> = (0..60)
-            .map(|f| {
-                let turn = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.2 * (f as f64 * 0.2).sin(), 0.0));
-                let pose = ModelToCamera::from_rvec_tvec((turn * facing).scaled_axis(), Vector3::new(0.0, 0.0, 50.0));
-                let smile = if f % 10 < 4 {
-                    0.1 + 0.05 * (f as f64).sin().abs()
-                } else {
-                    0.0
-                };
-                let pts: Vec<(f64, f64)> = (0..NUM_LANDMARKS)
-                    .map(|l| {
-                        let mut x = rig.landmark(l, &[0.0; 6]);
-                        // model +X is the subject's left, +Y up
-                        let side = match l {
-                            48 | 60 => -1.0,
-                            54 | 64 => 1.0,
-                            _ => 0.0,
-                        };
-                        x.x += side * smile * width;
-                        x.y += side.abs() * 0.5 * smile * width;
-                        let p = pose.project(&camera, &x).unwrap();
-                        (p.x, p.y)
-                    })
-                    .collect();
-                Landmarks68::from_slice(&pts).unwrap()
-            })
-            .collect();
-        let fit = |mouth_typical| {
-            let params = SubjectParams {
-                mouth_typical,
-                ..SubjectParams::default()
+        let width = neutral_distance(&rig, 48, 54);
+        let frames = turning_frames(&rig, camera, |f, l, x| {
+            let smile = if f % 10 < 4 {
+                0.1 + 0.05 * (f as f64).sin().abs()
+            } else {
+                0.0
             };
-            let priors = ShapePriors::neutral(6);
-            fit_subject(&rig, camera, ObjectiveParams::default(), &priors, &frames, &params).unwrap()
-        };
+            // model +X is the subject's left, +Y up
+            let side = match l {
+                48 | 60 => -1.0,
+                54 | 64 => 1.0,
+                _ => 0.0,
+            };
+            x.x += side * smile * width;
+            x.y += side.abs() * 0.5 * smile * width;
+        });
+        let fit = |mouth_typical| fit_plain(&rig, camera, &frames, |p| p.mouth_typical = mouth_typical);
         let corner_shift = |f: &SubjectFit| [48, 54, 60, 64].iter().map(|&l| f.offsets[l].norm()).sum::<f64>() / 4.0;
         let (typical, every) = (fit(Some(0.5)), fit(None));
         let (t, a) = (corner_shift(&typical), corner_shift(&every));
