@@ -51,6 +51,7 @@ use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
 /// | `identity_ridge` | 1.0 | ridge on the identity coefficients (unit-variance modes), (% IOD)^2 | `[0, 1e9]` |
 /// | `residual_offsets` | true | with identity modes, also fit the offset field on what they leave | |
 /// | `mouth_closed` | (0.0, 0.3) | the mouth and chin points' neutral is fitted on the frames whose mouth opening lies between these quantiles | as `eye_open` |
+/// | `eye_typical` | 0.5 | of each eye's open-eye frames, the share whose solved expression lies closest to the clip's typical one | (0, 1], or `None`: all of them |
 /// | `mouth_typical` | 0.5 | of those closed-mouth frames, the share whose solved expression lies closest to the clip's typical one | (0, 1], or `None`: all of them |
 /// | `eye_open` | (0.5, 0.95) | the lid points' neutral is fitted on the frames whose eye opening lies between these quantiles | `0 <= lo < hi <= 1`, or `None`: the resting frames |
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -97,6 +98,11 @@ pub struct SubjectParams {
     /// current neutral, so the choice does not inherit the neutral's own bias. `None`
     /// keeps every closed-mouth frame.
     pub mouth_typical: Option<f64>,
+    /// The same choice for the lid points: of each eye's open-eye frames
+    /// ([`SubjectParams::eye_open`]), the share whose solved weights lie closest to the
+    /// clip's typical expression (a squint or a wide-eyed stare held for a while stays
+    /// out of the neutral lids). `None` keeps every open-eye frame.
+    pub eye_typical: Option<f64>,
 }
 
 impl Default for SubjectParams {
@@ -112,6 +118,7 @@ impl Default for SubjectParams {
             eye_open: Some((0.5, 0.95)),
             mouth_closed: Some((0.0, 0.3)),
             mouth_typical: Some(0.5),
+            eye_typical: Some(0.5),
         }
     }
 }
@@ -125,8 +132,10 @@ impl SubjectParams {
         check_range("alpha_xy", self.alpha_xy, 0.0, 1e9)?;
         check_range("alpha_z", self.alpha_z, 0.0, 1e9)?;
         check_range("identity_ridge", self.identity_ridge, 0.0, 1e9)?;
-        if let Some(q) = self.mouth_typical {
-            check_range("mouth_typical", q, 1e-6, 1.0)?;
+        for (name, share) in [("mouth_typical", self.mouth_typical), ("eye_typical", self.eye_typical)] {
+            if let Some(q) = share {
+                check_range(name, q, 1e-6, 1.0)?;
+            }
         }
         for (name, q) in [("eye_open", self.eye_open), ("mouth_closed", self.mouth_closed)] {
             if let Some((lo, hi)) = q {
@@ -394,6 +403,10 @@ pub fn fit_subject_with_identity(
             (Some(closed), Some(share)) => Some(typical_among(closed, &solved, share)),
             (closed, _) => closed.clone(),
         };
+        let pass_eyes: [Option<Vec<bool>>; 2] = std::array::from_fn(|e| match (&eye_frames[e], params.eye_typical) {
+            (Some(open), Some(share)) => Some(typical_among(open, &solved, share)),
+            (open, _) => open.clone(),
+        });
         if let Some(m) = &pass_mouth {
             mouth_used = Some(m.iter().zip(&solved).filter(|(t, s)| **t && s.is_some()).count());
         }
@@ -422,7 +435,7 @@ pub fn fit_subject_with_identity(
             let Some((pose, _, contour)) = s else { continue };
             let rest = en <= threshold;
             // the landmarks this frame informs
-            let takes = |l: usize| match eye_of(l).and_then(|e| eye_frames[e].as_ref()) {
+            let takes = |l: usize| match eye_of(l).and_then(|e| pass_eyes[e].as_ref()) {
                 Some(open) => open[fi],
                 None => match &pass_mouth {
                     Some(closed) if in_mouth(l) => closed[fi],
@@ -951,10 +964,12 @@ mod tests {
             assert!(bad.validate().is_err(), "{eye_open:?}");
         }
         for share in [0.0, -0.5, 1.5, f64::NAN] {
-            let bad = SubjectParams {
+            let mut bad = SubjectParams {
                 mouth_typical: Some(share),
                 ..SubjectParams::default()
             };
+            assert!(bad.validate().is_err(), "{share}");
+            (bad.mouth_typical, bad.eye_typical) = (None, Some(share));
             assert!(bad.validate().is_err(), "{share}");
         }
     }
