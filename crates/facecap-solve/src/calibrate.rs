@@ -245,10 +245,9 @@ fn within_quantiles(values: &[f64], (lo, hi): (f64, f64)) -> Vec<bool> {
     values.iter().map(|&v| v.is_finite() && v >= a && v <= b).collect()
 }
 
-/// Of the frames marked in `among`, the `share` whose solved weights lie closest (L1) to
-/// the per-shape median of every solved frame's weights (the clip's typical expression);
-/// unsolved frames are never taken.
-fn typical_among(among: &[bool], solved: &[Option<SolvedSample>], share: f64) -> Vec<bool> {
+/// Per frame, the L1 distance of its solved weights from the per-shape median of every
+/// solved frame's weights (the clip's typical expression); NaN for an unsolved frame.
+fn distance_to_typical(solved: &[Option<SolvedSample>]) -> Vec<f64> {
     let weights: Vec<&Vec<f64>> = solved.iter().flatten().map(|(_, w, _)| w).collect();
     let n = weights.first().map_or(0, |w| w.len());
     let mut column = Vec::with_capacity(weights.len());
@@ -260,15 +259,24 @@ fn typical_among(among: &[bool], solved: &[Option<SolvedSample>], share: f64) ->
             column.get(column.len() / 2).copied().unwrap_or(0.0)
         })
         .collect();
-    let distance: Vec<f64> = among
+    solved
         .iter()
-        .zip(solved)
-        .map(|(&m, s)| match s {
-            Some((_, w, _)) if m => w.iter().zip(&median).map(|(a, b)| (a - b).abs()).sum(),
-            _ => f64::NAN,
+        .map(|s| match s {
+            Some((_, w, _)) => w.iter().zip(&median).map(|(a, b)| (a - b).abs()).sum(),
+            None => f64::NAN,
         })
+        .collect()
+}
+
+/// Of the frames marked in `among`, the `share` closest to the typical expression
+/// (`distance` from [`distance_to_typical`]); unsolved frames are never taken.
+fn typical_among(among: &[bool], distance: &[f64], share: f64) -> Vec<bool> {
+    let marked: Vec<f64> = among
+        .iter()
+        .zip(distance)
+        .map(|(&m, &d)| if m { d } else { f64::NAN })
         .collect();
-    within_quantiles(&distance, (0.0, share))
+    within_quantiles(&marked, (0.0, share))
 }
 
 /// The mouth's points (iBUG), fitted on the closed-mouth frames.
@@ -399,12 +407,18 @@ pub fn fit_subject_with_identity(
             .iter()
             .map(|s| s.as_ref().map_or(f64::INFINITY, |(_, w, _)| w.iter().sum()))
             .collect();
+        // one typical expression per pass, shared by the mouth's and the lids' choices
+        let typical = if params.mouth_typical.is_some() || params.eye_typical.is_some() {
+            distance_to_typical(&solved)
+        } else {
+            Vec::new()
+        };
         let pass_mouth = match (&mouth_frames, params.mouth_typical) {
-            (Some(closed), Some(share)) => Some(typical_among(closed, &solved, share)),
+            (Some(closed), Some(share)) => Some(typical_among(closed, &typical, share)),
             (closed, _) => closed.clone(),
         };
         let pass_eyes: [Option<Vec<bool>>; 2] = std::array::from_fn(|e| match (&eye_frames[e], params.eye_typical) {
-            (Some(open), Some(share)) => Some(typical_among(open, &solved, share)),
+            (Some(open), Some(share)) => Some(typical_among(open, &typical, share)),
             (open, _) => open.clone(),
         });
         if let Some(m) = &pass_mouth {
@@ -717,10 +731,7 @@ mod tests {
             .collect();
         let fit = |eye_open| fit_plain(&rig, camera, &frames, |p| p.eye_open = eye_open);
         let lid_shift = |f: &SubjectFit| [37, 38, 43, 44].iter().map(|&l| f.offsets[l].norm()).sum::<f64>() / 4.0;
-        let lid_gap = (0..3)
-            .map(|c| (rig.neutral[[37, c]] - rig.neutral[[41, c]]).powi(2))
-            .sum::<f64>()
-            .sqrt();
+        let lid_gap = neutral_distance(&rig, 37, 41);
         let (open, all) = (lid_shift(&fit(Some((0.5, 0.95)))), lid_shift(&fit(None)));
         // measured: 0.027 (open-eye frames) and 0.181 (all resting frames), lid gap 0.8
         assert!(

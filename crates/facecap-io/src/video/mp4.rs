@@ -41,7 +41,7 @@ pub fn video_frame_count(path: &Path) -> Option<u64> {
 }
 
 /// [`video_frame_count`] on any seekable reader of `len` bytes.
-pub fn frame_count_in<R: Read + Seek>(r: &mut R, len: u64) -> Option<u64> {
+fn frame_count_in<R: Read + Seek>(r: &mut R, len: u64) -> Option<u64> {
     let mut moov = None;
     let mut first = true;
     let mut top = Children::new(0, len)?;
@@ -117,7 +117,7 @@ impl Children {
             self.at = self.end;
             return Some(None);
         }
-        let item = read_header(r, self.at, self.end);
+        let item = box_at(r, self.at, self.end).ok();
         self.at = match item {
             Some(b) => b.end,
             None => self.end,
@@ -133,11 +133,6 @@ pub(crate) enum BadBox {
     Cut,
     /// The box claims `size` bytes where its parent has fewer left.
     Overrun { size: u64 },
-}
-
-/// The box whose header starts at `at`, which must end by `limit`.
-fn read_header<R: Read + Seek>(r: &mut R, at: u64, limit: u64) -> Option<BoxAt> {
-    box_at(r, at, limit).ok()
 }
 
 /// The box whose header starts at `at` (32-bit, 64-bit or to-the-end size), which must
