@@ -222,7 +222,7 @@ pub fn warp_to_tensor(
         pulp::Simd::vectorize(v3, WarpV3 { v3, args, out });
         return;
     }
-    warp_with(&args, out, |_, _, _| None);
+    warp_with(&args, out, |_, _, _| None, |_| {});
 }
 
 /// The inputs of [`warp_to_tensor`].
@@ -252,7 +252,12 @@ impl pulp::WithSimd for WarpV3<'_, '_, '_> {
     fn with_simd<S: pulp::Simd>(self, _simd: S) {
         let WarpV3 { v3, args, out } = self;
         let ValueMap { scale, offset } = args.values;
-        warp_with(&args, out, |top, bottom, wt| mix_v3(v3, top, bottom, wt, scale, offset));
+        warp_with(
+            &args,
+            out,
+            |top, bottom, wt| mix_v3(v3, top, bottom, wt, scale, offset),
+            |p| v3.sse._mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(p.cast()),
+        );
     }
 }
 
@@ -294,7 +299,12 @@ fn mix_v3(v3: pulp::x86::V3, top: &[u8], bottom: &[u8], wt: &[i32; 4], scale: f3
 /// The warp; `fast(top, bottom, weights)` may mix an interior pixel's three channels
 /// (see [`mix_v3`]).
 #[inline(always)]
-fn warp_with(args: &WarpArgs<'_, '_>, out: &mut [f32], fast: impl Fn(&[u8], &[u8], &[i32; 4]) -> Option<[f32; 4]>) {
+fn warp_with(
+    args: &WarpArgs<'_, '_>,
+    out: &mut [f32],
+    fast: impl Fn(&[u8], &[u8], &[i32; 4]) -> Option<[f32; 4]>,
+    prefetch: impl Fn(*const u8),
+) {
     let WarpArgs {
         img,
         map,
@@ -339,6 +349,11 @@ fn warp_with(args: &WarpArgs<'_, '_>, out: &mut [f32], fast: impl Fn(&[u8], &[u8
         }
     }
     // OpenCV: X = saturate_cast<int>(x * INTER_TAB_SIZE), i.e. cvRound (see `fixed`).
+    // Byte offset from a pixel's source to the source of the pixel PREFETCH_ROWS tensor rows
+    // below it (the map is affine, so the same for every pixel up to rounding).
+    let ahead_x = (PREFETCH_ROWS * map.dv[0]).round().clamp(-COORD_LIMIT, COORD_LIMIT) as isize;
+    let ahead_y = (PREFETCH_ROWS * map.dv[1]).round().clamp(-COORD_LIMIT, COORD_LIMIT) as isize;
+    let ahead = ahead_y.wrapping_mul(w as isize).wrapping_add(ahead_x).wrapping_mul(3);
     let mut fx = [0i64; MAX_PRECOMPUTED_COLUMNS];
     let mut fy = [0i64; MAX_PRECOMPUTED_COLUMNS];
     for (v, out_row) in out.chunks_exact_mut(3 * n).take(n).enumerate() {
@@ -367,6 +382,14 @@ fn warp_with(args: &WarpArgs<'_, '_>, out: &mut [f32], fast: impl Fn(&[u8], &[u8
             if x0 >= 0 && y0 >= 0 && x0 + 1 < w && y0 + 1 < h {
                 // the four neighbours: one slice from (x0, y0) to (x0 + 1, y0 + 1)
                 let i = ((y0 * w + x0) * 3) as usize;
+                if u % PREFETCH_EVERY == 0 {
+                    // The frame is usually cold here (decoded while other frames were
+                    // tracked): ask for the lines a few rows ahead. A prefetch of an address
+                    // outside the image is harmless (it is a hint; nothing is read).
+                    let p = img.data.as_ptr().wrapping_add(i).wrapping_offset(ahead);
+                    prefetch(p);
+                    prefetch(p.wrapping_add(row));
+                }
                 if let Some(v) = fast(&img.data[i..], &img.data[(i + row).min(img.data.len())..], wt) {
                     o.copy_from_slice(&v[..3]);
                 } else {
@@ -390,6 +413,12 @@ fn warp_with(args: &WarpArgs<'_, '_>, out: &mut [f32], fast: impl Fn(&[u8], &[u8
         }
     }
 }
+
+/// The interior pixels prefetch the source lines this many tensor rows ahead ...
+const PREFETCH_ROWS: f64 = 3.0;
+
+/// ... at every this many pixels (a 64-byte line holds ~21 source pixels).
+const PREFETCH_EVERY: usize = 8;
 
 /// Tensor widths up to this take their columns' source offsets from a stack table.
 const MAX_PRECOMPUTED_COLUMNS: usize = 512;
