@@ -60,9 +60,6 @@ const UNSEEN: [(&str, &str); 4] = [
     ("tongue", "inside the mouth; no landmark"),
 ];
 
-/// Coordinate passes of the non-negative fit behind `independence`.
-const NNLS_ITERATIONS: usize = 2000;
-
 /// Ridge (px^2 at IOD 100 px) of a shape with independence 1; see [`default_priors`].
 pub const BASE_RIDGE: f64 = 15.0;
 
@@ -251,18 +248,18 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
                 // a blink by a negative amount of something else)
                 let m = together.len();
                 let h = a.transpose() * &a; // symmetric: either storage order
-                let f: Vec<f64> = (a.transpose() * &b).iter().map(|v| -v).collect();
+                let g = a.transpose() * &b;
                 let mut x = vec![0.0; m];
-                let mut grad = vec![0.0; m];
-                let mut scratch = vec![0.0; facecap_geom::nnls::polish_scratch_len(m)];
-                facecap_geom::nnls::solve_polished_into(
+                // exact (active set), a few dozen working-set changes; the coordinate descent
+                // used before stopped at its pass cap on a fifth of these problems
+                facecap_geom::qp::solve_box_qp(
                     h.as_slice(),
-                    &f,
+                    g.as_slice(),
+                    &vec![0.0; m],
+                    &vec![f64::INFINITY; m],
                     &mut x,
-                    &mut grad,
-                    &mut scratch,
-                    NNLS_ITERATIONS,
-                    1e-12,
+                    &facecap_geom::qp::QpOptions::default(),
+                    &mut facecap_geom::qp::QpWorkspace::new(m),
                 );
                 let x = DVector::from_vec(x);
                 ((&a * x - &b).norm() / motion).clamp(0.0, 1.0)
