@@ -1834,6 +1834,85 @@ mod tests {
         }
     }
 
+    /// The 8-channel stride-1 3x3 depthwise layers, which AVX-512 runs two pixels to a
+    /// register, give the portable bits at every width from 1 to 37 pixels (blocks of
+    /// four pairs, a lone pair, an odd last pixel, borders) and both paddings.
+    #[test]
+    fn depthwise_pairs_give_the_same_bits() {
+        let mut rng = ChaCha8Rng::seed_from_u64(29);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        for iw in 1..=37 {
+            for padding in [Padding::Same, Padding::Valid] {
+                let ih = rng.random_range(1..6);
+                let Some(g) = Geom::new(ih, iw, 8, square_window(3, 1, padding)) else {
+                    continue;
+                };
+                let input = rnd(&mut rng, ih * iw * 8);
+                let (filter, bias, alpha) = (rnd(&mut rng, 72), rnd(&mut rng, 8), rnd(&mut rng, 8));
+                let ep = Epilogue {
+                    act: Activation::None,
+                    residual: None,
+                    post: Post::Prelu(&alpha),
+                };
+                let mut first: Option<Vec<u32>> = None;
+                for level in Level::all() {
+                    let mut dw = vec![0.0; g.oh * g.ow * 8];
+                    depthwise_at(level, &input, &g, &filter, &bias, &ep, &mut dw);
+                    match &first {
+                        None => first = Some(bits(&dw)),
+                        Some(want) => assert!(
+                            &bits(&dw) == want,
+                            "depthwise {ih}x{iw}x8/1 {padding:?} at {level:?} differs"
+                        ),
+                    }
+                }
+            }
+        }
+    }
+
+    /// The `1x1 16 -> 8` layers, which AVX-512 runs two pixels to a register, give the
+    /// portable bits for 1 to 40 pixels (blocks of six pairs, lone pairs, an odd last
+    /// pixel) with every epilogue the model uses.
+    #[test]
+    fn pointwise_pairs_give_the_same_bits() {
+        let mut rng = ChaCha8Rng::seed_from_u64(31);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+        for rows in 1..=40 {
+            let input = rnd(&mut rng, rows * 16);
+            let (filter, bias) = (rnd(&mut rng, 8 * 16), rnd(&mut rng, 8));
+            let (res, alpha) = (rnd(&mut rng, rows * 8), rnd(&mut rng, 8));
+            let packed = Packed::new(&filter, Some(&bias), 8, 16);
+            let eps = [
+                Epilogue {
+                    act: Activation::None,
+                    residual: None,
+                    post: Post::Prelu(&alpha),
+                },
+                Epilogue {
+                    act: Activation::Relu,
+                    residual: Some(&res),
+                    post: Post::None,
+                },
+                Epilogue {
+                    act: Activation::None,
+                    residual: Some(&res),
+                    post: Post::Relu,
+                },
+            ];
+            for ep in &eps {
+                let mut first: Option<Vec<u32>> = None;
+                for level in Level::all() {
+                    let mut out = vec![0.0; rows * 8];
+                    gemm_at(level, &input, rows, &packed, ep, &mut out);
+                    match &first {
+                        None => first = Some(bits(&out)),
+                        Some(want) => assert!(&bits(&out) == want, "{rows} rows at {level:?} differ"),
+                    }
+                }
+            }
+        }
+    }
+
     /// Max pooling on random shapes (8-channel path with overlapping last block, and
     /// the per-channel loop below 8 channels) against a plain per-element loop.
     #[test]

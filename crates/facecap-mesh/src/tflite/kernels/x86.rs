@@ -716,6 +716,12 @@ fn conv_direct(
 #[inline(always)]
 fn gemm(widths: &Widths, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
     let (k, n) = (w.k, w.n);
+    if let (Some(l), [p]) = (widths.wide, w.panels.as_slice()) {
+        if k == PAIR_K && n == PAIR_CHANNELS && p.width == PAIR_CHANNELS && p.cols == PAIR_CHANNELS {
+            gemm_pairs(l, widths.narrow, a, rows, w, ep, out);
+            return;
+        }
+    }
     let mut p0 = 0;
     while p0 < rows {
         let end = (p0 + super::CHUNK).min(rows);
@@ -751,6 +757,131 @@ fn gemm(widths: &Widths, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, 
             }
         }
         p0 = end;
+    }
+}
+
+/// [`finish`]'s vector epilogue on one register of [`gemm_pairs`] (two output pixels at
+/// flat index `at`; `alpha` the PReLU slopes written twice). A function, not a closure:
+/// closures do not inherit the target features and run out of line.
+#[inline(always)]
+fn pair_epilogue(l: L16, ep: &Epilogue<'_>, alpha: f32x16, v: f32x16, at: usize, out: &mut [f32]) {
+    const W: usize = 2 * PAIR_CHANNELS;
+    let zero = l.splat(0.0);
+    let mut v = activate(l, ep.act, v);
+    if let Some(res) = ep.residual {
+        v = l.add(v, l.load(&res[at..at + W]));
+    }
+    match ep.post {
+        Post::None => {}
+        Post::Relu => v = l.max(v, zero),
+        Post::Prelu(_) => v = l.fma(alpha, l.min(v, zero), l.max(v, zero)),
+    }
+    l.store(&mut out[at..at + W], v);
+}
+
+/// Reduction length of the pointwise layers [`gemm_pairs`] runs (`1x1 16 -> 8`).
+const PAIR_K: usize = 16;
+
+/// Pixel pairs per register block of [`gemm_pairs`].
+const PAIR_ROWS: usize = 6;
+
+/// A pointwise convolution `16 -> 8` with 16-lane registers that hold two neighbouring
+/// output pixels (lanes 0-7 the channels of pixel `p`, 8-15 those of `p + 1`, which are
+/// also neighbours in the output). Each pixel's 16 inputs are one register; one two-table
+/// permute per `k` spreads input `k` of both pixels over their halves, against weight row
+/// `k` written twice, so one 16-lane FMA does the work of two 8-lane ones. Each output is
+/// still the bias, then one FMA per `k` in order, then [`finish`]'s epilogue, so the bits
+/// are the same as on the 8-lane path (which takes the last odd pixels).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn gemm_pairs(l: L16, narrow: L8, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+    const K: usize = PAIR_K;
+    const C: usize = PAIR_CHANNELS;
+    let f = l.0.avx512f;
+    let panel = &w.data[..K * C];
+    let mut wd = [[0.0f32; 2 * C]; K];
+    for (kk, row) in wd.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = panel[kk * C + j % C];
+        }
+    }
+    let mut idx = [[0i32; 2 * C]; K];
+    for (kk, row) in idx.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            // lanes 0-7 take input kk of the first table, 8-15 input kk of the second
+            *v = (kk + if j < C { 0 } else { K }) as i32;
+        }
+    }
+    let mut dup = [0.0f32; 2 * C];
+    for (j, v) in dup.iter_mut().enumerate() {
+        *v = w.bias[j % C];
+    }
+    let bias = l.load(&dup);
+    let alpha = match ep.post {
+        Post::Prelu(al) => {
+            for (j, v) in dup.iter_mut().enumerate() {
+                *v = al[j % C];
+            }
+            l.load(&dup)
+        }
+        _ => l.splat(0.0),
+    };
+    let zero = l.splat(0.0);
+    let pairs = rows / 2;
+    let mut q = 0;
+    while q + PAIR_ROWS <= pairs {
+        let base = 2 * q * K;
+        let x = &a[base..base + 2 * PAIR_ROWS * K];
+        let mut xs = [[zero; 2]; PAIR_ROWS];
+        for_rows!(PAIR_ROWS, |r| {
+            xs[r] = [l.load(&x[2 * r * K..]), l.load(&x[(2 * r + 1) * K..])];
+        });
+        let mut acc = [bias; PAIR_ROWS];
+        for (wk, ik) in wd.iter().zip(&idx) {
+            let wv = l.load(wk);
+            let iv: core::arch::x86_64::__m512i = bytemuck::cast(*ik);
+            for_rows!(PAIR_ROWS, |r| {
+                let b: f32x16 = pulp::cast(f._mm512_permutex2var_ps(pulp::cast(xs[r][0]), iv, pulp::cast(xs[r][1])));
+                acc[r] = l.fma(b, wv, acc[r]);
+            });
+        }
+        for_rows!(PAIR_ROWS, |r| {
+            pair_epilogue(l, ep, alpha, acc[r], (2 * (q + r)) * C, out);
+        });
+        q += PAIR_ROWS;
+    }
+    while q < pairs {
+        let base = 2 * q * K;
+        let x = [l.load(&a[base..]), l.load(&a[base + K..])];
+        let mut acc = bias;
+        for (wk, ik) in wd.iter().zip(&idx) {
+            let iv: core::arch::x86_64::__m512i = bytemuck::cast(*ik);
+            let b: f32x16 = pulp::cast(f._mm512_permutex2var_ps(pulp::cast(x[0]), iv, pulp::cast(x[1])));
+            acc = l.fma(b, l.load(wk), acc);
+        }
+        pair_epilogue(l, ep, alpha, acc, 2 * q * C, out);
+        q += 1;
+    }
+    if rows % 2 == 1 {
+        // the last pixel: the 8-lane path's block of one row
+        let p = rows - 1;
+        let b = Block {
+            input: a,
+            base: p * K,
+            pstride: K,
+            rstride: 0,
+            kh: 1,
+            seg: K,
+            w: [panel, &[], &[]],
+            stride: C,
+            bias: &w.bias[..C],
+            ep,
+            at: p * C,
+            ldo: C,
+            c0: 0,
+            ncols: C,
+        };
+        narrow.block::<1>(1, &b, &mut out[p * C..]);
     }
 }
 
@@ -911,6 +1042,127 @@ fn depthwise3x3_s<L: Lanes, const S: usize>(
     }
 }
 
+/// Channels of the layers [`depthwise3x3_pairs`] runs.
+const PAIR_CHANNELS: usize = 8;
+
+/// Output pixel pairs per register block of [`depthwise3x3_pairs`].
+const PAIR_BLOCK: usize = 4;
+
+/// 3x3 depthwise convolution at stride 1 on 8 channels with 16-lane registers that hold two
+/// neighbouring output pixels: lanes 0-7 the channels of pixel `x`, lanes 8-15 those of
+/// `x + 1`, so one 16-float load at input pixel `x - pl + kx` is tap `kx` of both, against
+/// the tap's weights written twice. Half the instructions of the 8-lane path on the
+/// landmark model's four 128x128x8 layers. Each output is summed as in [`depthwise3x3_s`]
+/// (bias, then the taps row by row), so the bits are the same; border pixels and an odd
+/// last interior pixel take the 8-lane paths.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn depthwise3x3_pairs<L: Lanes, M: Lanes>(
+    wide: L,
+    narrow: M,
+    input: &[f32],
+    g: &Geom,
+    filter: &[f32],
+    bias: &[f32],
+    ep: &Epilogue<'_>,
+    out: &mut [f32],
+) {
+    const C: usize = PAIR_CHANNELS;
+    debug_assert!(L::N == 2 * C && M::N == C && g.ic == C && g.win.sw == 1);
+    let row_len = g.iw * C;
+    // Interior columns: all three taps inside the row.
+    let lo = g.pl.min(g.ow);
+    let hi = if g.iw + g.pl >= 3 {
+        (g.iw + g.pl - 2).min(g.ow)
+    } else {
+        0
+    }
+    .max(lo);
+    // The nine taps' weights and the bias, each written twice.
+    let mut wd = [[0.0f32; 2 * C]; 9];
+    for (t, w) in wd.iter_mut().enumerate() {
+        for (j, v) in w.iter_mut().enumerate() {
+            *v = filter[t * C + j % C];
+        }
+    }
+    let mut bd = [0.0f32; 2 * C];
+    for (j, v) in bd.iter_mut().enumerate() {
+        *v = bias[j % C];
+    }
+    let mut ty = [(0usize, 0usize); 3];
+    for oy in 0..g.oh {
+        let mut ny = 0;
+        for ky in 0..3 {
+            if let Some(iy) = g.iy(oy, ky) {
+                ty[ny] = (ky, iy);
+                ny += 1;
+            }
+        }
+        let orow = oy * g.ow * C;
+        let mut ox = 0;
+        if ny == 3 {
+            let b = wide.load(&bd);
+            let mut wv = [[wide.splat(0.0); 3]; 3];
+            for (ky, wrow) in wv.iter_mut().enumerate() {
+                for (kx, wk) in wrow.iter_mut().enumerate() {
+                    *wk = wide.load(&wd[ky * 3 + kx]);
+                }
+            }
+            let rows = rows_of::<3>(input, ty[0].1 * row_len, row_len, row_len);
+            while ox < lo {
+                let v = dw_pixel(narrow, input, g, filter, bias, &ty, ox, 0);
+                narrow.store(&mut out[orow + ox * C..], v);
+                ox += 1;
+            }
+            while ox + 2 * PAIR_BLOCK <= hi {
+                let x0 = (ox - g.pl) * C;
+                let mut acc = [b; PAIR_BLOCK];
+                for (row, w) in rows.iter().zip(&wv) {
+                    let win = &row[x0..x0 + (2 * PAIR_BLOCK + 2) * C];
+                    for (j, a) in acc.iter_mut().enumerate() {
+                        for (kx, wk) in w.iter().enumerate() {
+                            let i = (2 * j + kx) * C;
+                            *a = wide.fma(wide.load(&win[i..i + 2 * C]), *wk, *a);
+                        }
+                    }
+                }
+                for (j, a) in acc.iter().enumerate() {
+                    wide.store(&mut out[orow + (ox + 2 * j) * C..], *a);
+                }
+                ox += 2 * PAIR_BLOCK;
+            }
+            while ox + 2 <= hi {
+                let x0 = (ox - g.pl) * C;
+                let mut a = b;
+                for (row, w) in rows.iter().zip(&wv) {
+                    for (kx, wk) in w.iter().enumerate() {
+                        let i = x0 + kx * C;
+                        a = wide.fma(wide.load(&row[i..i + 2 * C]), *wk, a);
+                    }
+                }
+                wide.store(&mut out[orow + ox * C..], a);
+                ox += 2;
+            }
+            while ox < hi {
+                let v = dw_pixel(narrow, input, g, filter, bias, &ty, ox, 0);
+                narrow.store(&mut out[orow + ox * C..], v);
+                ox += 1;
+            }
+        }
+        while ox < g.ow {
+            let v = dw_pixel(narrow, input, g, filter, bias, &ty[..ny], ox, 0);
+            narrow.store(&mut out[orow + ox * C..], v);
+            ox += 1;
+        }
+        if !ep.is_identity() {
+            for ox in 0..g.ow {
+                let a = orow + ox * C;
+                ep.apply(&mut out[a..a + C], a, 0);
+            }
+        }
+    }
+}
+
 /// [`super::depthwise`] with each `N`-channel accumulator kept in a register over all
 /// taps (one store per output vector instead of a load and a store per tap). Needs
 /// `c % N == 0` and kernels of at most [`MAX_TAPS`] per axis; the caller checks.
@@ -1013,6 +1265,10 @@ fn depthwise_widths(
     let w3 = g.win.kh == 3 && g.win.kw == 3 && g.win.dh == 1 && g.win.dw == 1;
     let small = g.win.kh <= MAX_TAPS && g.win.kw <= MAX_TAPS;
     if let Some(l) = widths.wide {
+        if w3 && g.ic == PAIR_CHANNELS && g.win.sw == 1 {
+            depthwise3x3_pairs(l, widths.narrow, input, g, filter, bias, ep, out);
+            return true;
+        }
         if w3 && g.ic >= 16 {
             depthwise3x3(l, input, g, filter, bias, ep, out);
             return true;
