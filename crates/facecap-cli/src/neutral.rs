@@ -170,7 +170,7 @@ pub fn calibrate_subject(
             "iterations": params.iterations,
             "mean_offset_rig_units": fit.mean_offset,
             "mean_expression_before": fit.mean_expression_before,
-            "mean_expression_after": fit.mean_expression_after,
+            "mean_expression_last_pass": fit.mean_expression_last_pass,
             "offsets": fit.offsets.iter().map(|d| [d.x, d.y, d.z]).collect::<Vec<_>>(),
         }),
         rig: fit.rig,

@@ -173,10 +173,13 @@ pub struct SubjectFit {
     pub mouth_frames: Option<usize>,
     /// Mean offset length (rig units).
     pub mean_offset: f64,
-    /// Mean total expression `sum_i e_i` of the solved frames before and after calibration.
+    /// Mean total expression `sum_i e_i` of the solved frames before calibration (the
+    /// first pass, on the generic rig).
     pub mean_expression_before: f64,
-    /// See `mean_expression_before`.
-    pub mean_expression_after: f64,
+    /// The same on the last pass (the rig of all passes but the last refit). The frames are
+    /// not solved once more on the final rig: that would cost a whole pass for a report
+    /// figure, and the clip is solved on it anyway.
+    pub mean_expression_last_pass: f64,
 }
 
 /// A linear identity model on the rig's topology (for example ICT FaceKit's 100 PCA modes),
@@ -297,21 +300,31 @@ fn mouth_opening(l: &Landmarks68) -> f64 {
     gap / (p[36] - p[45]).norm()
 }
 
-fn solve_all(solver: &Exact3dSolver, frames: &[&Landmarks68]) -> Vec<Option<SolvedSample>> {
+/// Solves `frames`, each from its own solution of the previous pass in `states` (one per
+/// frame, kept across the passes: the rig changes little between passes, so a frame's last
+/// pose and weights are a closer start than its neighbour's). A frame without one (the
+/// first pass, or after a failure) starts from the frame before it, as a clip is solved.
+fn solve_all(solver: &Exact3dSolver, frames: &[&Landmarks68], states: &mut [SolveState]) -> Vec<Option<SolvedSample>> {
     let n = solver.num_shapes();
     let mut ws = solver.workspace();
-    let mut state = SolveState::new(n);
     let mut sol = Solution::new(n);
-    frames
-        .iter()
-        .map(|l| match solver.solve_into(l, &mut ws, &mut state, &mut sol) {
+    let mut out = Vec::with_capacity(frames.len());
+    for (i, l) in frames.iter().enumerate() {
+        let Some(state) = states.get(i) else { break };
+        if !state.has_previous && i > 0 {
+            let before = states[i - 1].clone();
+            states[i] = before;
+        }
+        let state = &mut states[i];
+        out.push(match solver.solve_into(l, &mut ws, state, &mut sol) {
             Ok(_) => sol.pose.map(|p| (p, sol.weights.clone(), solver.contour_offsets(&ws))),
             Err(_) => {
                 state.reset();
                 None
             }
-        })
-        .collect()
+        });
+    }
+    out
 }
 
 /// Fits the subject's neutral (module docs). `objective` and `priors` are those the frames
@@ -398,11 +411,18 @@ pub fn fit_subject_with_identity(
         _ => None,
     };
     let mut before = f64::NAN;
+    let mut last_pass = f64::NAN;
+    // per sampled frame, its solution of the previous pass (sized by the first solver: a
+    // coupled pair is one of its variables)
+    let mut states: Vec<SolveState> = Vec::new();
     let mut rest_frames = 0;
     let mut mouth_used = None;
     for pass in 0..params.iterations {
         let solver = build(&current)?;
-        let solved = solve_all(&solver, &sample);
+        if states.is_empty() {
+            states = vec![SolveState::new(solver.num_shapes()); sample.len()];
+        }
+        let solved = solve_all(&solver, &sample, &mut states);
         let energy: Vec<f64> = solved
             .iter()
             .map(|s| s.as_ref().map_or(f64::INFINITY, |(_, w, _)| w.iter().sum()))
@@ -430,9 +450,11 @@ pub fn fit_subject_with_identity(
                 reason: "no frame could be solved for the subject's neutral".into(),
             });
         }
+        let mean = finite.iter().sum::<f64>() / finite.len() as f64;
         if pass == 0 {
-            before = finite.iter().sum::<f64>() / finite.len() as f64;
+            before = mean;
         }
+        last_pass = mean;
         let threshold = if pass == 0 {
             f64::INFINITY
         } else {
@@ -593,12 +615,6 @@ pub fn fit_subject_with_identity(
             }
         }
     }
-    // the expression left on the same frames after calibration
-    let solver = build(&current)?;
-    let after: Vec<f64> = solve_all(&solver, &sample)
-        .iter()
-        .filter_map(|s| s.as_ref().map(|(_, w, _)| w.iter().sum::<f64>()))
-        .collect();
     let mapped = (0..NUM_LANDMARKS).filter(|&l| rig.mapped[l]).count().max(1);
     Ok(SubjectFit {
         mean_offset: offsets.iter().map(|d| d.norm()).sum::<f64>() / mapped as f64,
@@ -609,11 +625,7 @@ pub fn fit_subject_with_identity(
         rest_frames,
         mouth_frames: mouth_used,
         mean_expression_before: before,
-        mean_expression_after: if after.is_empty() {
-            f64::NAN
-        } else {
-            after.iter().sum::<f64>() / after.len() as f64
-        },
+        mean_expression_last_pass: last_pass,
     })
 }
 
@@ -670,7 +682,8 @@ mod tests {
         let rmse = |r: &BlendshapeRig| {
             let s = Exact3dSolver::new(r, Exact3dParams::new(camera)).unwrap();
             let refs: Vec<&Landmarks68> = frames.iter().collect();
-            let out = solve_all(&s, &refs);
+            let mut states = vec![SolveState::new(6); refs.len()];
+            let out = solve_all(&s, &refs, &mut states);
             let mut se = 0.0;
             for (o, w) in out.iter().zip(&truth) {
                 let (_, e, _) = o.as_ref().unwrap();

@@ -36,7 +36,11 @@
 //! | `camera` | required | pinhole intrinsics (px); CLI default `fx = fy = max(W, H)`, centre | |
 //! | `max_alternations` | 50 | outer iterations | 1-10000 |
 //! | `pose_iterations` | 2 | LM steps of the rigid update per alternation | 0-100 |
-//! | `tol` | 1e-9 | relative decrease that stops | (0, 1) |
+//! | `tol` | 1e-5 | relative decrease that stops | (0, 1) |
+//!
+//! `tol`: from 1e-9 to 1e-5 the mean number of alternations per frame falls from 9.9 to 6.8
+//! on liveportrait_d6 (whole capture 0.957 of the wall time) while no weight of the five
+//! shared clips moves by more than 0.0005 (built-in and ICT rigs; docs/expressions.md).
 //! | `joint` | true | pose increments free in the QP step | |
 
 use facecap_core::camera::{Intrinsics, ModelToCamera};
@@ -61,7 +65,7 @@ pub struct Exact3dParams {
     pub max_alternations: usize,
     /// LM steps per rigid update.
     pub pose_iterations: usize,
-    /// Relative-decrease stop.
+    /// Relative-decrease stop (see the module table).
     pub tol: f64,
     /// Free pose increments in the QP step.
     pub joint: bool,
@@ -75,7 +79,7 @@ impl Exact3dParams {
             camera,
             max_alternations: 50,
             pose_iterations: 2,
-            tol: 1e-9,
+            tol: 1e-5,
             joint: true,
         }
     }
