@@ -42,6 +42,8 @@ pub enum ColorRange {
 const FIX_SHIFT: u32 = 16;
 const FIX_ONE: f64 = (1u32 << FIX_SHIFT) as f64;
 const FIX_HALF: i32 = 1 << (FIX_SHIFT - 1);
+/// Chroma samples per block of the 4:2:0 conversion (32 pixels of each row).
+const CHROMA_BLOCK: usize = 16;
 
 /// Lookup table mapping limited-range luma codes to full range:
 /// `round((y - 16) * 255 / 219)` clamped to 0..=255.
@@ -144,6 +146,34 @@ impl YuvToRgb {
                 }
             }
         }
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = pulp::x86::V3::try_new() {
+            if let Some(size) = half {
+                struct Run420<'a> {
+                    v3: pulp::x86::V3,
+                    conv: &'a YuvToRgb,
+                    planes: [&'a [u8]; 3],
+                    size: (usize, usize),
+                    out: &'a mut [u8],
+                }
+                impl pulp::NullaryFnOnce for Run420<'_> {
+                    type Output = ();
+                    #[inline(always)]
+                    fn call(self) {
+                        let [y, cb, cr] = self.planes;
+                        avx2::convert_420_rows(self.v3, self.conv, [y, cb, cr], self.size, self.out);
+                    }
+                }
+                v3.vectorize(Run420 {
+                    v3,
+                    conv: self,
+                    planes: [y, cb, cr],
+                    size,
+                    out,
+                });
+                return;
+            }
+        }
         let run = Run {
             conv: self,
             planes: [y, cb, cr],
@@ -187,35 +217,77 @@ impl YuvToRgb {
     }
 
     /// 4:2:0 planes to interleaved RGB, each chroma sample used for the 2x2 pixels it
-    /// covers (nearest, as [`YuvToRgb::convert_into`] documents): each row in blocks of
-    /// up to 64 pixels, the chroma doubled into two stack arrays, then
-    /// [`YuvToRgb::convert_444_blocks`] (vectorised under the caller's SIMD dispatch).
-    /// Sizes are checked by the caller: `y` is `w * h`, `cb`/`cr` hold
-    /// `ceil(w/2) * ceil(h/2)` samples.
+    /// covers (nearest, as [`YuvToRgb::convert_into`] documents). Rows go in pairs (the
+    /// two rows one chroma row covers), in blocks of [`CHROMA_BLOCK`] chroma samples:
+    /// the chroma terms of [`YuvToRgb::pixel`] are computed once per sample, doubled
+    /// across the pair of columns, and added to both rows' luma
+    /// ([`YuvToRgb::luma_block`]); the columns left over go pixel by pixel. Integer
+    /// arithmetic throughout, so the bytes are [`YuvToRgb::pixel`]'s (unit tests
+    /// `vector_420_equals_the_pixel_formula` and
+    /// `planes_420_convert_like_pixel_by_pixel_at_odd_and_even_widths`). Sizes are
+    /// checked by the caller: `y` is `w * h`, `cb`/`cr` hold `ceil(w/2) * ceil(h/2)`
+    /// samples.
     #[inline(always)]
     fn convert_420_rows(&self, y: &[u8], cb: &[u8], cr: &[u8], (w, h): (usize, usize), out: &mut [u8]) {
-        const B: usize = 64;
+        const C: usize = CHROMA_BLOCK;
         let cw = w.div_ceil(2);
-        for row in 0..h {
+        let mut row = 0;
+        while row < h {
+            let rows = (h - row).min(2);
             let c0 = (row / 2) * cw;
             let (cb_row, cr_row) = (&cb[c0..c0 + cw], &cr[c0..c0 + cw]);
-            let yrow = &y[row * w..][..w];
-            let orow = &mut out[3 * row * w..][..3 * w];
             let mut x = 0;
-            while x < w {
-                let n = (w - x).min(B);
-                let i0 = x / 2;
-                let pairs = n.div_ceil(2);
-                let (mut ub, mut ur) = ([0u8; B], [0u8; B]);
-                for (k, (u, v)) in cb_row[i0..i0 + pairs].iter().zip(&cr_row[i0..i0 + pairs]).enumerate() {
-                    ub[2 * k] = *u;
-                    ub[2 * k + 1] = *u;
-                    ur[2 * k] = *v;
-                    ur[2 * k + 1] = *v;
+            while x + 2 * C <= w {
+                let ci = x / 2;
+                let (mut tr, mut tg, mut tb) = ([0i32; 2 * C], [0i32; 2 * C], [0i32; 2 * C]);
+                for k in 0..C {
+                    let u = i32::from(cb_row[ci + k]) - 128;
+                    let v = i32::from(cr_row[ci + k]) - 128;
+                    let (r, g, b) = (self.r_cr * v, -self.g_cb * u - self.g_cr * v, self.b_cb * u);
+                    tr[2 * k] = r;
+                    tr[2 * k + 1] = r;
+                    tg[2 * k] = g;
+                    tg[2 * k + 1] = g;
+                    tb[2 * k] = b;
+                    tb[2 * k + 1] = b;
                 }
-                self.convert_444_blocks(&yrow[x..x + n], &ub[..n], &ur[..n], &mut orow[3 * x..3 * (x + n)]);
-                x += n;
+                for r in row..row + rows {
+                    let at = r * w + x;
+                    self.luma_block(&y[at..at + 2 * C], [&tr, &tg, &tb], &mut out[3 * at..3 * (at + 2 * C)]);
+                }
+                x += 2 * C;
             }
+            for r in row..row + rows {
+                for col in x..w {
+                    let ci = col / 2;
+                    let at = r * w + col;
+                    out[3 * at..3 * at + 3].copy_from_slice(&self.pixel(y[at], cb_row[ci], cr_row[ci]));
+                }
+            }
+            row += rows;
+        }
+    }
+
+    /// One row's `2 * CHROMA_BLOCK` pixels of [`YuvToRgb::convert_420_rows`]: the luma
+    /// term of [`YuvToRgb::pixel`] plus the given chroma terms (one per pixel), shifted,
+    /// clamped and interleaved. Fixed-size arrays, so the compiler keeps them in vector
+    /// registers under the caller's SIMD dispatch.
+    #[inline(always)]
+    fn luma_block(&self, ys: &[u8], [tr, tg, tb]: [&[i32; 2 * CHROMA_BLOCK]; 3], out: &mut [u8]) {
+        const P: usize = 2 * CHROMA_BLOCK;
+        let (Ok(ys), Ok(out)) = (<&[u8; P]>::try_from(ys), <&mut [u8; 3 * P]>::try_from(out)) else {
+            return;
+        };
+        let clamp = |v: i32| (v >> FIX_SHIFT).clamp(0, 255) as u8;
+        let (mut r, mut g, mut b) = ([0u8; P], [0u8; P], [0u8; P]);
+        for k in 0..P {
+            let yy = (i32::from(ys[k]) - self.y_off) * self.y_mul + FIX_HALF;
+            r[k] = clamp(yy + tr[k]);
+            g[k] = clamp(yy + tg[k]);
+            b[k] = clamp(yy + tb[k]);
+        }
+        for (k, px) in out.chunks_exact_mut(3).enumerate() {
+            px.copy_from_slice(&[r[k], g[k], b[k]]);
         }
     }
 
@@ -259,6 +331,167 @@ impl YuvToRgb {
                 let ci = crow + col / sx;
                 o.copy_from_slice(&self.pixel(*yv, cb[ci], cr[ci]));
             }
+        }
+    }
+}
+
+/// The 4:2:0 conversion in AVX2 registers: [`YuvToRgb::convert_420_rows`]'s method (row
+/// pairs, blocks of [`CHROMA_BLOCK`] chroma samples, the chroma terms once per sample) with
+/// the same integer arithmetic, 8 pixels to a register, then packed with saturation (which
+/// is the clamp to 0..=255: the shifted values fit in 16 bits) and interleaved by byte
+/// shuffles. Same bytes as [`YuvToRgb::pixel`] (unit tests `vector_420_equals_the_pixel_formula`
+/// and `planes_420_convert_like_pixel_by_pixel_at_odd_and_even_widths` run it where the
+/// CPU has AVX2).
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{YuvToRgb, CHROMA_BLOCK, FIX_HALF, FIX_SHIFT};
+    use core::arch::x86_64::{__m128i, __m256i};
+    use pulp::x86::V3;
+
+    const C: usize = CHROMA_BLOCK;
+    const P: usize = 2 * C;
+
+    /// Byte shuffle that puts channel `ch` of a lane's 16 pixels at its places in chunk `j`
+    /// (bytes `16 j .. 16 j + 16`) of their 48 interleaved bytes; `0x80` (zero) elsewhere.
+    /// Both lanes alike.
+    const fn mask(ch: usize, j: usize) -> [u8; 32] {
+        let mut m = [0x80u8; 32];
+        let mut i = 0;
+        while i < 16 {
+            let q = 16 * j + i;
+            if q % 3 == ch {
+                m[i] = (q / 3) as u8;
+                m[i + 16] = (q / 3) as u8;
+            }
+            i += 1;
+        }
+        m
+    }
+
+    /// `MASKS[ch][j]`, see [`mask`].
+    const MASKS: [[[u8; 32]; 3]; 3] = [
+        [mask(0, 0), mask(0, 1), mask(0, 2)],
+        [mask(1, 0), mask(1, 1), mask(1, 2)],
+        [mask(2, 0), mask(2, 1), mask(2, 2)],
+    ];
+
+    /// The three chroma terms of [`YuvToRgb::pixel`] for `C` samples, each doubled over the
+    /// two pixel columns it covers: `[channel][8 pixels]`.
+    #[inline(always)]
+    fn chroma_terms(v3: V3, conv: &YuvToRgb, cb: &[u8; C], cr: &[u8; C]) -> [[__m256i; 4]; 3] {
+        let (avx, sse2) = (v3.avx2, v3.sse2);
+        let centre = v3.avx._mm256_set1_epi32(128);
+        let widen = |s: &[u8; C]| -> [__m256i; 2] {
+            let v: __m128i = pulp::cast(*s);
+            [
+                avx._mm256_sub_epi32(avx._mm256_cvtepu8_epi32(v), centre),
+                avx._mm256_sub_epi32(avx._mm256_cvtepu8_epi32(sse2._mm_srli_si128::<8>(v)), centre),
+            ]
+        };
+        let (u, v) = (widen(cb), widen(cr));
+        let k = |c: i32| v3.avx._mm256_set1_epi32(c);
+        let lo: __m256i = pulp::cast([0i32, 0, 1, 1, 2, 2, 3, 3]);
+        let hi: __m256i = pulp::cast([4i32, 4, 5, 5, 6, 6, 7, 7]);
+        let mut t = [[v3.avx._mm256_setzero_si256(); 4]; 3];
+        for half in 0..2 {
+            let (u, v) = (u[half], v[half]);
+            let r = avx._mm256_mullo_epi32(v, k(conv.r_cr));
+            let g = avx._mm256_sub_epi32(
+                v3.avx._mm256_setzero_si256(),
+                avx._mm256_add_epi32(
+                    avx._mm256_mullo_epi32(u, k(conv.g_cb)),
+                    avx._mm256_mullo_epi32(v, k(conv.g_cr)),
+                ),
+            );
+            let b = avx._mm256_mullo_epi32(u, k(conv.b_cb));
+            for (ch, term) in [r, g, b].into_iter().enumerate() {
+                t[ch][2 * half] = avx._mm256_permutevar8x32_epi32(term, lo);
+                t[ch][2 * half + 1] = avx._mm256_permutevar8x32_epi32(term, hi);
+            }
+        }
+        t
+    }
+
+    /// One row's `P` pixels: luma term plus `terms`, shifted, packed (clamped), interleaved
+    /// into `out` (`3 P` bytes).
+    #[inline(always)]
+    fn block(v3: V3, conv: &YuvToRgb, ys: &[u8; P], terms: &[[__m256i; 4]; 3], out: &mut [u8; 3 * P]) {
+        let (avx, sse2) = (v3.avx2, v3.sse2);
+        let halves: [[u8; 16]; 2] = pulp::cast(*ys);
+        let (a, b): (__m128i, __m128i) = (pulp::cast(halves[0]), pulp::cast(halves[1]));
+        let mul = v3.avx._mm256_set1_epi32(conv.y_mul);
+        let add = v3.avx._mm256_set1_epi32(FIX_HALF - conv.y_off * conv.y_mul);
+        let yy = [a, sse2._mm_srli_si128::<8>(a), b, sse2._mm_srli_si128::<8>(b)]
+            .map(|q| avx._mm256_add_epi32(avx._mm256_mullo_epi32(avx._mm256_cvtepu8_epi32(q), mul), add));
+        let order: __m256i = pulp::cast([0i32, 4, 1, 5, 2, 6, 3, 7]);
+        let channel = |t: &[__m256i; 4]| -> __m256i {
+            let v: [__m256i; 4] = std::array::from_fn(|k| {
+                avx._mm256_srai_epi32::<{ FIX_SHIFT as i32 }>(avx._mm256_add_epi32(yy[k], t[k]))
+            });
+            let bytes = avx._mm256_packus_epi16(avx._mm256_packs_epi32(v[0], v[1]), avx._mm256_packs_epi32(v[2], v[3]));
+            avx._mm256_permutevar8x32_epi32(bytes, order)
+        };
+        let rgb = [channel(&terms[0]), channel(&terms[1]), channel(&terms[2])];
+        let chunk = |j: usize| -> __m256i {
+            let s = |ch: usize| avx._mm256_shuffle_epi8(rgb[ch], pulp::cast(MASKS[ch][j]));
+            avx._mm256_or_si256(avx._mm256_or_si256(s(0), s(1)), s(2))
+        };
+        let (o0, o1, o2) = (chunk(0), chunk(1), chunk(2));
+        let parts: [[u8; 32]; 3] = [
+            pulp::cast(avx._mm256_permute2x128_si256::<0x20>(o0, o1)),
+            pulp::cast(avx._mm256_permute2x128_si256::<0x30>(o2, o0)),
+            pulp::cast(avx._mm256_permute2x128_si256::<0x31>(o1, o2)),
+        ];
+        for (dst, src) in out.chunks_exact_mut(32).zip(parts.iter()) {
+            dst.copy_from_slice(src);
+        }
+    }
+
+    /// [`YuvToRgb::convert_420_rows`] in AVX2 (module docs); the columns after the last
+    /// whole block go through [`YuvToRgb::pixel`]. Sizes as there.
+    #[inline(always)]
+    pub(super) fn convert_420_rows(
+        v3: V3,
+        conv: &YuvToRgb,
+        [y, cb, cr]: [&[u8]; 3],
+        (w, h): (usize, usize),
+        out: &mut [u8],
+    ) {
+        let cw = w.div_ceil(2);
+        let mut row = 0;
+        while row < h {
+            let rows = (h - row).min(2);
+            let c0 = (row / 2) * cw;
+            let (cb_row, cr_row) = (&cb[c0..c0 + cw], &cr[c0..c0 + cw]);
+            let mut x = 0;
+            while x + P <= w {
+                let ci = x / 2;
+                let (Ok(u), Ok(v)) = (
+                    <&[u8; C]>::try_from(&cb_row[ci..ci + C]),
+                    <&[u8; C]>::try_from(&cr_row[ci..ci + C]),
+                ) else {
+                    break;
+                };
+                let terms = chroma_terms(v3, conv, u, v);
+                for r in row..row + rows {
+                    let at = r * w + x;
+                    if let (Ok(ys), Ok(o)) = (
+                        <&[u8; P]>::try_from(&y[at..at + P]),
+                        <&mut [u8; 3 * P]>::try_from(&mut out[3 * at..3 * (at + P)]),
+                    ) {
+                        block(v3, conv, ys, &terms, o);
+                    }
+                }
+                x += P;
+            }
+            for r in row..row + rows {
+                for col in x..w {
+                    let ci = col / 2;
+                    let at = r * w + col;
+                    out[3 * at..3 * at + 3].copy_from_slice(&conv.pixel(y[at], cb_row[ci], cr_row[ci]));
+                }
+            }
+            row += rows;
         }
     }
 }
@@ -323,7 +556,19 @@ mod tests {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(420);
         let c = YuvToRgb::new(ColorMatrix::Bt709, ColorRange::Limited);
-        for (w, h) in [(1usize, 1usize), (2, 2), (3, 5), (64, 3), (65, 4), (130, 7), (480, 6)] {
+        for (w, h) in [
+            (1usize, 1usize),
+            (2, 2),
+            (3, 5),
+            (31, 2),
+            (32, 1),
+            (33, 3),
+            (64, 3),
+            (65, 4),
+            (95, 5),
+            (130, 7),
+            (480, 6),
+        ] {
             let cw = w.div_ceil(2);
             let y: Vec<u8> = (0..w * h).map(|_| rng.random()).collect();
             let cb: Vec<u8> = (0..cw * h.div_ceil(2)).map(|_| rng.random()).collect();
