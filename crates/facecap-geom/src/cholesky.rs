@@ -30,12 +30,15 @@ pub fn solve_factored(l: &[f64], n: usize, b: &mut [f64]) {
     for i in 0..n {
         b[i] = (b[i] - dot(&l[i * n..i * n + i], &b[..i])) / l[i * n + i];
     }
+    // L^T x = y by columns of L^T, i.e. rows of L: once x_i is known, it is taken out of
+    // every earlier equation (a contiguous axpy along row i, where the row-by-row form
+    // would walk down a column of the row-major factor)
     for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= l[k * n + i] * b[k];
+        let xi = b[i] / l[i * n + i];
+        b[i] = xi;
+        for (bk, lik) in b[..i].iter_mut().zip(&l[i * n..i * n + i]) {
+            *bk -= lik * xi;
         }
-        b[i] = s / l[i * n + i];
     }
 }
 

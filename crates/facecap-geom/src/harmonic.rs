@@ -10,9 +10,7 @@
 //! [`Harmonic::interpolate`] is then two triangular solves. A free vertex with no path
 //! to a fixed one gets 0 (a tiny pull to zero keeps the system definite).
 
-use nalgebra::{DMatrix, DVector};
-
-use crate::{Error, Result};
+use crate::{cholesky, Error, Result};
 
 /// Most free vertices accepted (the dense factorisation is `n^2` memory).
 const MAX_FREE: usize = 8192;
@@ -27,7 +25,9 @@ pub struct Harmonic {
     fixed_index: Vec<Option<usize>>,
     /// Per free vertex: `(fixed position, weight)` of its edges to fixed vertices.
     coupling: Vec<Vec<(usize, f64)>>,
-    chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    /// Cholesky factor of the free vertices' system ([`cholesky::factor`], row-major,
+    /// lower triangle).
+    factor: Vec<f64>,
 }
 
 fn invalid(reason: impl Into<String>) -> Error {
@@ -81,7 +81,7 @@ impl Harmonic {
                 }
             }
         }
-        let mut a = DMatrix::<f64>::zeros(m, m);
+        let mut a = vec![0.0f64; m * m];
         let mut coupling = vec![Vec::new(); m];
         let mut wsum = 0.0;
         for &(i, j) in &edges {
@@ -93,17 +93,17 @@ impl Harmonic {
             wsum += w;
             match (free_index[i], free_index[j]) {
                 (Some(fi), Some(fj)) => {
-                    a[(fi, fi)] += w;
-                    a[(fj, fj)] += w;
-                    a[(fi, fj)] -= w;
-                    a[(fj, fi)] -= w;
+                    a[fi * m + fi] += w;
+                    a[fj * m + fj] += w;
+                    a[fi * m + fj] -= w;
+                    a[fj * m + fi] -= w;
                 }
                 (Some(fi), None) => {
-                    a[(fi, fi)] += w;
+                    a[fi * m + fi] += w;
                     coupling[fi].push((fixed_index[j].unwrap_or(0), w));
                 }
                 (None, Some(fj)) => {
-                    a[(fj, fj)] += w;
+                    a[fj * m + fj] += w;
                     coupling[fj].push((fixed_index[i].unwrap_or(0), w));
                 }
                 (None, None) => {}
@@ -111,15 +111,16 @@ impl Harmonic {
         }
         let eps = 1e-9 * wsum / edges.len().max(1) as f64 + 1e-12;
         for i in 0..m {
-            a[(i, i)] += eps;
+            a[i * m + i] += eps;
         }
-        let chol = a.cholesky().ok_or_else(|| invalid("system not positive definite"))?;
+        cholesky::factor(&mut a, m)
+            .map_err(|pivot| invalid(format!("system not positive definite (pivot {pivot})")))?;
         Ok(Harmonic {
             n,
             free_index,
             fixed_index,
             coupling,
-            chol,
+            factor: a,
         })
     }
 
@@ -147,12 +148,12 @@ impl Harmonic {
         }
         let m = self.coupling.len();
         let mut out = vec![[0.0; 3]; self.n];
+        let mut x = vec![0.0f64; m];
         for c in 0..3 {
-            let mut rhs = DVector::<f64>::zeros(m);
-            for (fi, cs) in self.coupling.iter().enumerate() {
-                rhs[fi] = cs.iter().map(|&(k, w)| w * values[k][c]).sum();
+            for (xi, cs) in x.iter_mut().zip(&self.coupling) {
+                *xi = cs.iter().map(|&(k, w)| w * values[k][c]).sum();
             }
-            let x = self.chol.solve(&rhs);
+            cholesky::solve_factored(&self.factor, m, &mut x);
             for (v, o) in out.iter_mut().enumerate() {
                 o[c] = match (self.free_index[v], self.fixed_index[v]) {
                     (Some(fi), _) => x[fi],
