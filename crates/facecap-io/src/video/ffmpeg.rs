@@ -56,7 +56,7 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use super::yuv::{apply_lut, limited_to_full_luma_lut, ColorMatrix, ColorRange, YuvToRgb};
+use super::yuv::{expand_limited_luma, ColorMatrix, ColorRange, YuvToRgb};
 use super::{ensure_gray, ensure_rgb, Frame, FrameSource, Luma, SourceKind, SourceOptions, VideoInfo};
 use facecap_core::error::{Error, Result};
 
@@ -432,7 +432,8 @@ pub struct FfmpegSource {
     chroma_sub: u32,
     /// The chroma subsampling is ffmpeg's choice, read from each frame's report.
     negotiated: bool,
-    lut: Option<[u8; 256]>,
+    /// Limited-range luma expanded to full range ([`expand_limited_luma`]).
+    expand_luma: bool,
     conv: YuvToRgb,
     rgb: bool,
     tail: VecDeque<String>,
@@ -587,7 +588,7 @@ impl FfmpegSource {
             chroma: Vec::new(),
             chroma_sub: if opts.rgb { 1 } else { 2 },
             negotiated,
-            lut: None,
+            expand_luma: false,
             conv: YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Limited),
             rgb: opts.rgb,
             tail: VecDeque::with_capacity(LOG_TAIL_LINES + 1),
@@ -678,7 +679,7 @@ impl FfmpegSource {
         // ffmpeg converts to the requested yuv420p/yuv444p; full-range (yuvj) input keeps
         // its range tag, so the range and matrix of the input stream apply.
         let range = header.range;
-        src.lut = (opts.luma == Luma::Full && range == ColorRange::Limited).then(limited_to_full_luma_lut);
+        src.expand_luma = opts.luma == Luma::Full && range == ColorRange::Limited;
         src.conv = YuvToRgb::new(header.matrix, range);
         let cw = width.div_ceil(src.chroma_sub) as usize;
         let ch = height.div_ceil(src.chroma_sub) as usize;
@@ -974,8 +975,8 @@ impl FfmpegSource {
                 reuse,
             )?);
         }
-        if let Some(lut) = &self.lut {
-            apply_lut(&mut frame.gray, lut);
+        if self.expand_luma {
+            expand_limited_luma(&mut frame.gray);
         }
         frame.index = k;
         frame.timestamp_s = time(&rep, self.time_base).unwrap_or(k as f64 / self.info.fps);

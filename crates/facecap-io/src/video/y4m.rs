@@ -24,7 +24,7 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use super::yuv::{apply_lut, limited_to_full_luma_lut, ColorMatrix, ColorRange, YuvToRgb};
+use super::yuv::{expand_limited_luma, limited_to_full_luma_lut, ColorMatrix, ColorRange, YuvToRgb};
 use super::{ensure_gray, ensure_rgb, Frame, FrameSource, Luma, SourceKind, SourceOptions, VideoInfo};
 use facecap_core::error::{Error, Result};
 
@@ -390,8 +390,8 @@ impl<R: Read> Y4mReader<R> {
                 }
             }
         }
-        if let Some(lut) = &self.lut {
-            apply_lut(&mut frame.gray, lut);
+        if self.lut.is_some() {
+            expand_limited_luma(&mut frame.gray);
         }
         frame.index = self.next_index;
         frame.timestamp_s = self.next_index as f64 * f64::from(self.header.fps_den) / f64::from(self.header.fps_num);

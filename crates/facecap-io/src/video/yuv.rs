@@ -56,6 +56,26 @@ pub fn limited_to_full_luma_lut() -> [u8; 256] {
     lut
 }
 
+/// Expands limited-range luma codes to full range in place: the same bytes as
+/// [`limited_to_full_luma_lut`] through [`apply_lut`] (unit test
+/// `luma_expansion_equals_the_table`), in 16-bit integer arithmetic that the compiler
+/// vectorises, where a table lookup goes byte by byte. `round((y - 16) * 255 / 219)` is
+/// `(255 k + 109) / 219` for `k = y - 16 >= 0` (no code lies halfway between two).
+pub fn expand_limited_luma(img: &mut GrayImage) {
+    struct Run<'a>(&'a mut [u8]);
+    impl pulp::WithSimd for Run<'_> {
+        type Output = ();
+        #[inline(always)]
+        fn with_simd<S: pulp::Simd>(self, _simd: S) {
+            for p in self.0.iter_mut() {
+                let k = u16::from(*p).saturating_sub(16);
+                *p = ((k * 255 + 109) / 219).min(255) as u8;
+            }
+        }
+    }
+    pulp::Arch::new().dispatch(Run(img.as_mut()));
+}
+
 /// Applies a 256-entry lookup table to every pixel in place.
 pub fn apply_lut(img: &mut GrayImage, lut: &[u8; 256]) {
     for p in img.as_mut().iter_mut() {
@@ -588,6 +608,25 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn luma_expansion_equals_the_table() {
+        let lut = limited_to_full_luma_lut();
+        // every code, at lengths around the vector widths
+        for n in [1usize, 15, 31, 64, 256, 1000] {
+            let codes: Vec<u8> = (0..n).map(|i| (i * 97 % 256) as u8).collect();
+            let mut a = GrayImage::from_raw(n as u32, 1, codes.clone()).unwrap();
+            let mut b = a.clone();
+            expand_limited_luma(&mut a);
+            apply_lut(&mut b, &lut);
+            assert_eq!(a, b, "n {n}");
+        }
+        let all = GrayImage::from_fn(256, 1, |x, _| image::Luma([x as u8]));
+        let (mut a, mut b) = (all.clone(), all);
+        expand_limited_luma(&mut a);
+        apply_lut(&mut b, &lut);
+        assert_eq!(a, b);
     }
 
     #[test]
