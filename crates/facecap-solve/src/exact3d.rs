@@ -109,6 +109,10 @@ const MAX_HALVINGS: usize = 30;
 /// A weight above this counts as active for the exclusive pairs.
 const EXCLUSIVE_EPS: f64 = 1e-3;
 
+/// Most shapes [`Exact3dSolver::pose_points`] lists as on (beyond, it tests every shape
+/// at every point).
+const ACTIVE_MAX: usize = 64;
+
 /// `(IOD / 100 px)^2` of the observed landmarks (1 when the eye corners are unusable).
 fn prior_scale(input: &Landmarks68) -> f64 {
     let d = (input.points[36] - input.points[45]).norm();
@@ -703,20 +707,51 @@ impl Exact3dSolver {
     }
 
     fn pose_points(&self, cw: &ContourWork, e: &[f64], out: &mut [Vector3<f64>]) {
+        // the shapes that are on, listed once: the per-point loop then runs over them
+        // without a test per shape (same shapes, same order, so the same sums)
+        let mut on = [(0usize, 0.0f64); ACTIVE_MAX];
+        let mut count = 0;
+        for (k, &w) in e.iter().enumerate() {
+            if w != 0.0 {
+                if count == ACTIVE_MAX {
+                    count = usize::MAX;
+                    break;
+                }
+                on[count] = (k, w);
+                count += 1;
+            }
+        }
+        if count == usize::MAX {
+            self.pose_points_all(cw, e, out);
+            return;
+        }
+        let on = &on[..count];
+        let n = self.n;
         if self.contour.is_empty() {
             // no contour slot: every point is the rig's own
-            let n = self.n;
             for (j, o) in out.iter_mut().enumerate() {
+                let d = &self.deltas[j * n..(j + 1) * n];
                 let mut p = self.neutral[j];
-                for (k, &w) in e.iter().enumerate() {
-                    if w != 0.0 {
-                        p += self.deltas[j * n + k] * w;
-                    }
+                for &(k, w) in on {
+                    p += d[k] * w;
                 }
                 *o = p;
             }
             return;
         }
+        for (j, o) in out.iter_mut().enumerate() {
+            let mut p = self.point_neutral(cw, j);
+            let d = self.point_deltas(cw, j);
+            for &(k, w) in on {
+                p += d[k] * w;
+            }
+            *o = p;
+        }
+    }
+
+    /// [`Exact3dSolver::pose_points`] testing each shape at each point (for more than
+    /// [`ACTIVE_MAX`] shapes on).
+    fn pose_points_all(&self, cw: &ContourWork, e: &[f64], out: &mut [Vector3<f64>]) {
         for (j, o) in out.iter_mut().enumerate() {
             let mut p = self.point_neutral(cw, j);
             for (&d, &w) in self.point_deltas(cw, j).iter().zip(e) {
