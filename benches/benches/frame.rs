@@ -2,8 +2,11 @@
 //! track, landmarks, plausibility checks) over a 30-frame clip of a real face, for each
 //! landmark front end. Criterion reports time per frame (throughput in frames).
 //!
-//! `cargo bench -p facecap-benches --bench frame` (skips, with a `SKIP:` line, when the
-//! model cache has no dlib or face mesh models).
+//! `video/yuv420_to_rgb/480x480`: the colour conversion every frame of the mesh front end
+//! goes through (decoded 4:2:0 planes to interleaved RGB), one 480x480 frame.
+//!
+//! `cargo bench -p facecap-benches --bench frame` (the pipeline skips, with a `SKIP:` line,
+//! when the model cache has no dlib or face mesh models).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
@@ -49,5 +52,22 @@ fn frame(c: &mut Criterion) {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-criterion_group!(benches, frame);
+fn yuv(c: &mut Criterion) {
+    use facecap_io::video::yuv::{ColorMatrix, ColorRange, YuvToRgb};
+    let (w, h) = (480usize, 480usize);
+    // planes with every code and some structure (not constant, so no shortcut applies)
+    let y: Vec<u8> = (0..w * h).map(|i| (i * 37 % 251) as u8).collect();
+    let cb: Vec<u8> = (0..w * h / 4).map(|i| (i * 53 % 241) as u8).collect();
+    let cr: Vec<u8> = (0..w * h / 4).map(|i| (i * 29 % 239) as u8).collect();
+    let conv = YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Limited);
+    let mut out = image::RgbImage::new(w as u32, h as u32);
+    let mut group = c.benchmark_group("video/yuv420_to_rgb");
+    group.throughput(Throughput::Elements(1));
+    group.bench_function("480x480", |b| {
+        b.iter(|| conv.convert_into(&y, &cb, &cr, w as u32, h as u32, 2, 2, &mut out));
+    });
+    group.finish();
+}
+
+criterion_group!(benches, frame, yuv);
 criterion_main!(benches);
