@@ -237,78 +237,16 @@ impl YuvToRgb {
     }
 
     /// 4:2:0 planes to interleaved RGB, each chroma sample used for the 2x2 pixels it
-    /// covers (nearest, as [`YuvToRgb::convert_into`] documents). Rows go in pairs (the
-    /// two rows one chroma row covers), in blocks of [`CHROMA_BLOCK`] chroma samples:
-    /// the chroma terms of [`YuvToRgb::pixel`] are computed once per sample, doubled
-    /// across the pair of columns, and added to both rows' luma
-    /// ([`YuvToRgb::luma_block`]); the columns left over go pixel by pixel. Integer
-    /// arithmetic throughout, so the bytes are [`YuvToRgb::pixel`]'s (unit tests
-    /// `vector_420_equals_the_pixel_formula` and
+    /// covers (nearest, as [`YuvToRgb::convert_into`] documents), by [`walk_420`] with
+    /// the portable [`Blocks420`] kernel (fixed-size arrays the compiler vectorises
+    /// under the caller's SIMD dispatch). Integer arithmetic throughout, so the bytes are
+    /// [`YuvToRgb::pixel`]'s (unit tests `vector_420_equals_the_pixel_formula` and
     /// `planes_420_convert_like_pixel_by_pixel_at_odd_and_even_widths`). Sizes are
     /// checked by the caller: `y` is `w * h`, `cb`/`cr` hold `ceil(w/2) * ceil(h/2)`
     /// samples.
     #[inline(always)]
-    fn convert_420_rows(&self, y: &[u8], cb: &[u8], cr: &[u8], (w, h): (usize, usize), out: &mut [u8]) {
-        const C: usize = CHROMA_BLOCK;
-        let cw = w.div_ceil(2);
-        let mut row = 0;
-        while row < h {
-            let rows = (h - row).min(2);
-            let c0 = (row / 2) * cw;
-            let (cb_row, cr_row) = (&cb[c0..c0 + cw], &cr[c0..c0 + cw]);
-            let mut x = 0;
-            while x + 2 * C <= w {
-                let ci = x / 2;
-                let (mut tr, mut tg, mut tb) = ([0i32; 2 * C], [0i32; 2 * C], [0i32; 2 * C]);
-                for k in 0..C {
-                    let u = i32::from(cb_row[ci + k]) - 128;
-                    let v = i32::from(cr_row[ci + k]) - 128;
-                    let (r, g, b) = (self.r_cr * v, -self.g_cb * u - self.g_cr * v, self.b_cb * u);
-                    tr[2 * k] = r;
-                    tr[2 * k + 1] = r;
-                    tg[2 * k] = g;
-                    tg[2 * k + 1] = g;
-                    tb[2 * k] = b;
-                    tb[2 * k + 1] = b;
-                }
-                for r in row..row + rows {
-                    let at = r * w + x;
-                    self.luma_block(&y[at..at + 2 * C], [&tr, &tg, &tb], &mut out[3 * at..3 * (at + 2 * C)]);
-                }
-                x += 2 * C;
-            }
-            for r in row..row + rows {
-                for col in x..w {
-                    let ci = col / 2;
-                    let at = r * w + col;
-                    out[3 * at..3 * at + 3].copy_from_slice(&self.pixel(y[at], cb_row[ci], cr_row[ci]));
-                }
-            }
-            row += rows;
-        }
-    }
-
-    /// One row's `2 * CHROMA_BLOCK` pixels of [`YuvToRgb::convert_420_rows`]: the luma
-    /// term of [`YuvToRgb::pixel`] plus the given chroma terms (one per pixel), shifted,
-    /// clamped and interleaved. Fixed-size arrays, so the compiler keeps them in vector
-    /// registers under the caller's SIMD dispatch.
-    #[inline(always)]
-    fn luma_block(&self, ys: &[u8], [tr, tg, tb]: [&[i32; 2 * CHROMA_BLOCK]; 3], out: &mut [u8]) {
-        const P: usize = 2 * CHROMA_BLOCK;
-        let (Ok(ys), Ok(out)) = (<&[u8; P]>::try_from(ys), <&mut [u8; 3 * P]>::try_from(out)) else {
-            return;
-        };
-        let clamp = |v: i32| (v >> FIX_SHIFT).clamp(0, 255) as u8;
-        let (mut r, mut g, mut b) = ([0u8; P], [0u8; P], [0u8; P]);
-        for k in 0..P {
-            let yy = (i32::from(ys[k]) - self.y_off) * self.y_mul + FIX_HALF;
-            r[k] = clamp(yy + tr[k]);
-            g[k] = clamp(yy + tg[k]);
-            b[k] = clamp(yy + tb[k]);
-        }
-        for (k, px) in out.chunks_exact_mut(3).enumerate() {
-            px.copy_from_slice(&[r[k], g[k], b[k]]);
-        }
+    fn convert_420_rows(&self, y: &[u8], cb: &[u8], cr: &[u8], size: (usize, usize), out: &mut [u8]) {
+        walk_420(self, &Portable(self), [y, cb, cr], size, out);
     }
 
     /// Converts planar Y'CbCr to RGB. `y` is `width*height`; `cb`/`cr` are
@@ -355,6 +293,115 @@ impl YuvToRgb {
     }
 }
 
+/// Pixels of each row in one block of the 4:2:0 conversion.
+const BLOCK_PIXELS: usize = 2 * CHROMA_BLOCK;
+
+/// A block kernel of the 4:2:0 conversion ([`walk_420`]): the chroma terms of
+/// [`YuvToRgb::pixel`] for [`CHROMA_BLOCK`] samples, then one row's [`BLOCK_PIXELS`]
+/// pixels from them.
+trait Blocks420 {
+    /// The chroma terms, doubled over the two columns each sample covers.
+    type Terms;
+    /// The terms of `CHROMA_BLOCK` chroma samples.
+    fn terms(&self, cb: &[u8; CHROMA_BLOCK], cr: &[u8; CHROMA_BLOCK]) -> Self::Terms;
+    /// One row's pixels: luma term plus `terms`, shifted, clamped, interleaved.
+    fn row(&self, terms: &Self::Terms, ys: &[u8; BLOCK_PIXELS], out: &mut [u8; 3 * BLOCK_PIXELS]);
+}
+
+/// The traversal of the 4:2:0 conversion: rows in pairs (the two rows one chroma row
+/// covers), in blocks of [`CHROMA_BLOCK`] chroma samples whose terms `kernel` computes
+/// once for both rows; the columns after the last whole block go through
+/// [`YuvToRgb::pixel`]. Sizes as [`YuvToRgb::convert_420_rows`].
+#[inline(always)]
+fn walk_420<K: Blocks420>(
+    conv: &YuvToRgb,
+    kernel: &K,
+    [y, cb, cr]: [&[u8]; 3],
+    (w, h): (usize, usize),
+    out: &mut [u8],
+) {
+    const C: usize = CHROMA_BLOCK;
+    const P: usize = BLOCK_PIXELS;
+    let cw = w.div_ceil(2);
+    let mut row = 0;
+    while row < h {
+        let rows = (h - row).min(2);
+        let c0 = (row / 2) * cw;
+        let (cb_row, cr_row) = (&cb[c0..c0 + cw], &cr[c0..c0 + cw]);
+        let mut x = 0;
+        while x + P <= w {
+            let ci = x / 2;
+            let (Ok(u), Ok(v)) = (
+                <&[u8; C]>::try_from(&cb_row[ci..ci + C]),
+                <&[u8; C]>::try_from(&cr_row[ci..ci + C]),
+            ) else {
+                break;
+            };
+            let terms = kernel.terms(u, v);
+            for r in row..row + rows {
+                let at = r * w + x;
+                if let (Ok(ys), Ok(o)) = (
+                    <&[u8; P]>::try_from(&y[at..at + P]),
+                    <&mut [u8; 3 * P]>::try_from(&mut out[3 * at..3 * (at + P)]),
+                ) {
+                    kernel.row(&terms, ys, o);
+                }
+            }
+            x += P;
+        }
+        for r in row..row + rows {
+            for col in x..w {
+                let ci = col / 2;
+                let at = r * w + col;
+                out[3 * at..3 * at + 3].copy_from_slice(&conv.pixel(y[at], cb_row[ci], cr_row[ci]));
+            }
+        }
+        row += rows;
+    }
+}
+
+/// The portable [`Blocks420`] kernel: fixed-size arrays, which the compiler keeps in
+/// vector registers under the caller's SIMD dispatch.
+struct Portable<'a>(&'a YuvToRgb);
+
+impl Blocks420 for Portable<'_> {
+    type Terms = [[i32; BLOCK_PIXELS]; 3];
+
+    #[inline(always)]
+    fn terms(&self, cb: &[u8; CHROMA_BLOCK], cr: &[u8; CHROMA_BLOCK]) -> Self::Terms {
+        let c = self.0;
+        let mut t = [[0i32; BLOCK_PIXELS]; 3];
+        for k in 0..CHROMA_BLOCK {
+            let u = i32::from(cb[k]) - 128;
+            let v = i32::from(cr[k]) - 128;
+            for (ch, term) in [c.r_cr * v, -c.g_cb * u - c.g_cr * v, c.b_cb * u]
+                .into_iter()
+                .enumerate()
+            {
+                t[ch][2 * k] = term;
+                t[ch][2 * k + 1] = term;
+            }
+        }
+        t
+    }
+
+    #[inline(always)]
+    fn row(&self, [tr, tg, tb]: &Self::Terms, ys: &[u8; BLOCK_PIXELS], out: &mut [u8; 3 * BLOCK_PIXELS]) {
+        let c = self.0;
+        let clamp = |v: i32| (v >> FIX_SHIFT).clamp(0, 255) as u8;
+        let (mut r, mut g, mut b) = ([0u8; BLOCK_PIXELS], [0u8; BLOCK_PIXELS], [0u8; BLOCK_PIXELS]);
+        for k in 0..BLOCK_PIXELS {
+            let yy = (i32::from(ys[k]) - c.y_off) * c.y_mul + FIX_HALF;
+            r[k] = clamp(yy + tr[k]);
+            g[k] = clamp(yy + tg[k]);
+            b[k] = clamp(yy + tb[k]);
+        }
+        for (k, px) in out.chunks_exact_mut(3).enumerate() {
+            px.copy_from_slice(&[r[k], g[k], b[k]]);
+        }
+    }
+}
+
 /// The 4:2:0 conversion in AVX2 registers: [`YuvToRgb::convert_420_rows`]'s method (row
 /// pairs, blocks of [`CHROMA_BLOCK`] chroma samples, the chroma terms once per sample) with
 /// the same integer arithmetic, 8 pixels to a register, then packed with saturation (which
@@ -364,12 +411,12 @@ impl YuvToRgb {
 /// CPU has AVX2).
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{YuvToRgb, CHROMA_BLOCK, FIX_HALF, FIX_SHIFT};
+    use super::{YuvToRgb, BLOCK_PIXELS, CHROMA_BLOCK, FIX_HALF, FIX_SHIFT};
     use core::arch::x86_64::{__m128i, __m256i};
     use pulp::x86::V3;
 
     const C: usize = CHROMA_BLOCK;
-    const P: usize = 2 * C;
+    const P: usize = BLOCK_PIXELS;
 
     /// Byte shuffle that puts channel `ch` of a lane's 16 pixels at its places in chunk `j`
     /// (bytes `16 j .. 16 j + 16`) of their 48 interleaved bytes; `0x80` (zero) elsewhere.
@@ -467,52 +514,27 @@ mod avx2 {
         }
     }
 
-    /// [`YuvToRgb::convert_420_rows`] in AVX2 (module docs); the columns after the last
-    /// whole block go through [`YuvToRgb::pixel`]. Sizes as there.
-    #[inline(always)]
-    pub(super) fn convert_420_rows(
-        v3: V3,
-        conv: &YuvToRgb,
-        [y, cb, cr]: [&[u8]; 3],
-        (w, h): (usize, usize),
-        out: &mut [u8],
-    ) {
-        let cw = w.div_ceil(2);
-        let mut row = 0;
-        while row < h {
-            let rows = (h - row).min(2);
-            let c0 = (row / 2) * cw;
-            let (cb_row, cr_row) = (&cb[c0..c0 + cw], &cr[c0..c0 + cw]);
-            let mut x = 0;
-            while x + P <= w {
-                let ci = x / 2;
-                let (Ok(u), Ok(v)) = (
-                    <&[u8; C]>::try_from(&cb_row[ci..ci + C]),
-                    <&[u8; C]>::try_from(&cr_row[ci..ci + C]),
-                ) else {
-                    break;
-                };
-                let terms = chroma_terms(v3, conv, u, v);
-                for r in row..row + rows {
-                    let at = r * w + x;
-                    if let (Ok(ys), Ok(o)) = (
-                        <&[u8; P]>::try_from(&y[at..at + P]),
-                        <&mut [u8; 3 * P]>::try_from(&mut out[3 * at..3 * (at + P)]),
-                    ) {
-                        block(v3, conv, ys, &terms, o);
-                    }
-                }
-                x += P;
-            }
-            for r in row..row + rows {
-                for col in x..w {
-                    let ci = col / 2;
-                    let at = r * w + col;
-                    out[3 * at..3 * at + 3].copy_from_slice(&conv.pixel(y[at], cb_row[ci], cr_row[ci]));
-                }
-            }
-            row += rows;
+    /// The AVX2 [`super::Blocks420`] kernel (module docs).
+    struct Avx2Blocks<'a>(V3, &'a YuvToRgb);
+
+    impl super::Blocks420 for Avx2Blocks<'_> {
+        type Terms = [[__m256i; 4]; 3];
+
+        #[inline(always)]
+        fn terms(&self, cb: &[u8; C], cr: &[u8; C]) -> Self::Terms {
+            chroma_terms(self.0, self.1, cb, cr)
         }
+
+        #[inline(always)]
+        fn row(&self, terms: &Self::Terms, ys: &[u8; P], out: &mut [u8; 3 * P]) {
+            block(self.0, self.1, ys, terms, out);
+        }
+    }
+
+    /// [`YuvToRgb::convert_420_rows`] in AVX2 (module docs), by [`super::walk_420`].
+    #[inline(always)]
+    pub(super) fn convert_420_rows(v3: V3, conv: &YuvToRgb, planes: [&[u8]; 3], size: (usize, usize), out: &mut [u8]) {
+        super::walk_420(conv, &Avx2Blocks(v3, conv), planes, size, out);
     }
 }
 
@@ -606,6 +628,28 @@ mod tests {
                         "{w}x{h} at ({col}, {row})"
                     );
                 }
+            }
+        }
+    }
+
+    /// The portable block kernel (what runs without AVX2) gives the same bytes as the
+    /// pixel formula too, whatever this CPU dispatches to.
+    #[test]
+    fn portable_420_equals_the_pixel_formula() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(421);
+        let c = YuvToRgb::new(ColorMatrix::Bt601, ColorRange::Full);
+        for (w, h) in [(1usize, 1usize), (31, 2), (32, 3), (95, 5), (480, 4)] {
+            let cw = w.div_ceil(2);
+            let y: Vec<u8> = (0..w * h).map(|_| rng.random()).collect();
+            let cb: Vec<u8> = (0..cw * h.div_ceil(2)).map(|_| rng.random()).collect();
+            let cr: Vec<u8> = (0..cw * h.div_ceil(2)).map(|_| rng.random()).collect();
+            let mut got = vec![0u8; 3 * w * h];
+            walk_420(&c, &Portable(&c), [&y, &cb, &cr], (w, h), &mut got);
+            for (i, px) in got.chunks_exact(3).enumerate() {
+                let (row, col) = (i / w, i % w);
+                let ci = (row / 2) * cw + col / 2;
+                assert_eq!(px, c.pixel(y[i], cb[ci], cr[ci]), "{w}x{h} at ({col}, {row})");
             }
         }
     }
