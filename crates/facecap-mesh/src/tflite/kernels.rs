@@ -471,22 +471,9 @@ mod v3 {
         let sw = if S == 0 { g.win.sw } else { S };
         let row_len = g.iw * c;
         // Interior columns: all three taps inside the row.
-        let lo = g.pl.div_ceil(sw).min(g.ow);
-        let hi = if g.iw + g.pl >= 3 {
-            ((g.iw + g.pl - 3) / sw + 1).min(g.ow)
-        } else {
-            0
-        }
-        .max(lo);
-        let mut ty = [(0usize, 0usize); 3];
+        let (lo, hi) = g.interior(3, sw);
         for oy in 0..g.oh {
-            let mut ny = 0;
-            for ky in 0..3 {
-                if let Some(iy) = g.iy(oy, ky) {
-                    ty[ny] = (ky, iy);
-                    ny += 1;
-                }
-            }
+            let (ty, ny) = g.taps3(oy);
             let orow = oy * g.ow * c;
             // With `c % 8 != 0` the last block overlaps the one before: its channels are
             // computed twice, with the same arithmetic, and stored twice.
@@ -778,13 +765,7 @@ mod v3 {
         let rstride = g.iw * c;
         let pstride = sw * c;
         // Output columns whose taps are all inside the input row.
-        let lo = g.pl.div_ceil(sw).min(g.ow);
-        let hi = if g.iw + g.pl >= kw {
-            ((g.iw + g.pl - kw) / sw + 1).min(g.ow)
-        } else {
-            0
-        }
-        .max(lo);
+        let (lo, hi) = g.interior(kw, sw);
         for oy in 0..g.oh {
             let p_row = oy * g.ow;
             let iy0 = (oy * sh).checked_sub(g.pt).filter(|&y| y + kh <= g.ih);
@@ -1185,6 +1166,33 @@ impl Geom {
         (ox * self.win.sw + kx * self.win.dw)
             .checked_sub(self.pl)
             .filter(|&x| x < self.iw)
+    }
+    /// The output columns `lo..hi` whose `kw` taps (stride `sw`, no dilation) all lie
+    /// inside the input row, so that a kernel can skip the edge checks there.
+    #[inline(always)]
+    pub(crate) fn interior(&self, kw: usize, sw: usize) -> (usize, usize) {
+        let lo = self.pl.div_ceil(sw).min(self.ow);
+        let hi = if self.iw + self.pl >= kw {
+            ((self.iw + self.pl - kw) / sw + 1).min(self.ow)
+        } else {
+            0
+        }
+        .max(lo);
+        (lo, hi)
+    }
+    /// The rows of a 3-tall window that lie inside the input for output row `oy`:
+    /// `(kernel row, input row)` pairs in kernel-row order, and how many there are.
+    #[inline(always)]
+    pub(crate) fn taps3(&self, oy: usize) -> ([(usize, usize); 3], usize) {
+        let mut ty = [(0usize, 0usize); 3];
+        let mut ny = 0;
+        for ky in 0..3 {
+            if let Some(iy) = self.iy(oy, ky) {
+                ty[ny] = (ky, iy);
+                ny += 1;
+            }
+        }
+        (ty, ny)
     }
     /// Whether the window is a plain 1x1 stride-1 convolution (GEMM on the input).
     pub fn is_pointwise(&self) -> bool {

@@ -658,13 +658,7 @@ fn conv_direct(
     let rstride = g.iw * c;
     let pstride = sw * c;
     // Output columns whose taps are all inside the input row.
-    let lo = g.pl.div_ceil(sw).min(g.ow);
-    let hi = if g.iw + g.pl >= kw {
-        ((g.iw + g.pl - kw) / sw + 1).min(g.ow)
-    } else {
-        0
-    }
-    .max(lo);
+    let (lo, hi) = g.interior(kw, sw);
     for oy in 0..g.oh {
         let p_row = oy * g.ow;
         let iy0 = (oy * sh).checked_sub(g.pt).filter(|&y| y + kh <= g.ih);
@@ -958,22 +952,9 @@ fn depthwise3x3_s<L: Lanes, const S: usize>(
     let sw = if S == 0 { g.win.sw } else { S };
     let row_len = g.iw * c;
     // Interior columns: all three taps inside the row.
-    let lo = g.pl.div_ceil(sw).min(g.ow);
-    let hi = if g.iw + g.pl >= 3 {
-        ((g.iw + g.pl - 3) / sw + 1).min(g.ow)
-    } else {
-        0
-    }
-    .max(lo);
-    let mut ty = [(0usize, 0usize); 3];
+    let (lo, hi) = g.interior(3, sw);
     for oy in 0..g.oh {
-        let mut ny = 0;
-        for ky in 0..3 {
-            if let Some(iy) = g.iy(oy, ky) {
-                ty[ny] = (ky, iy);
-                ny += 1;
-            }
-        }
+        let (ty, ny) = g.taps3(oy);
         let orow = oy * g.ow * c;
         // With `c % N != 0` the last block overlaps the one before: its channels are
         // computed twice, with the same arithmetic, and stored twice.
@@ -1071,13 +1052,7 @@ fn depthwise3x3_pairs<L: Lanes, M: Lanes>(
     debug_assert!(L::N == 2 * C && M::N == C && g.ic == C && g.win.sw == 1);
     let row_len = g.iw * C;
     // Interior columns: all three taps inside the row.
-    let lo = g.pl.min(g.ow);
-    let hi = if g.iw + g.pl >= 3 {
-        (g.iw + g.pl - 2).min(g.ow)
-    } else {
-        0
-    }
-    .max(lo);
+    let (lo, hi) = g.interior(3, 1);
     // The nine taps' weights and the bias, each written twice.
     let mut wd = [[0.0f32; 2 * C]; 9];
     for (t, w) in wd.iter_mut().enumerate() {
@@ -1089,15 +1064,8 @@ fn depthwise3x3_pairs<L: Lanes, M: Lanes>(
     for (j, v) in bd.iter_mut().enumerate() {
         *v = bias[j % C];
     }
-    let mut ty = [(0usize, 0usize); 3];
     for oy in 0..g.oh {
-        let mut ny = 0;
-        for ky in 0..3 {
-            if let Some(iy) = g.iy(oy, ky) {
-                ty[ny] = (ky, iy);
-                ny += 1;
-            }
-        }
+        let (ty, ny) = g.taps3(oy);
         let orow = oy * g.ow * C;
         let mut ox = 0;
         if ny == 3 {
