@@ -53,7 +53,7 @@ use crate::solver::{ExpressionSolver, ObjectiveParams, Solution, SolveState};
 /// | `mouth_closed` | (0.0, 0.3) | the mouth and chin points' neutral is fitted on the frames whose mouth opening lies between these quantiles | as `eye_open` |
 /// | `eye_typical` | 0.5 | of each eye's open-eye frames, the share whose solved expression lies closest to the clip's typical one | (0, 1], or `None`: all of them |
 /// | `mouth_typical` | 0.5 | of those closed-mouth frames, the share whose solved expression lies closest to the clip's typical one | (0, 1], or `None`: all of them |
-/// | `mouth_shape_ridge` | 8.0 | ridge on the offsets along the rig's mouth and jaw shapes, units of `alpha_xy` | `[0, 1e9]` |
+/// | `shape_ridge` | 8.0 | ridge on the offsets along the rig's mouth, jaw and eye shapes, units of `alpha_xy` | `[0, 1e9]` |
 /// | `eye_open` | (0.5, 0.95) | the lid points' neutral is fitted on the frames whose eye opening lies between these quantiles | `0 <= lo < hi <= 1`, or `None`: the resting frames |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SubjectParams {
@@ -104,17 +104,17 @@ pub struct SubjectParams {
     /// clip's typical expression (a squint or a wide-eyed stare held for a while stays
     /// out of the neutral lids). `None` keeps every open-eye frame.
     pub eye_typical: Option<f64>,
-    /// Ridge on the offsets' components along the rig's mouth and jaw shapes
-    /// ([`MOUTH_SHAPE_PREFIXES`]; each shape's landmark displacement at unit length), in
-    /// the units of `alpha_xy`. What the resting and closed-lip frames share that looks like
-    /// a mouth expression (lips pressed or rolled in, a held smile) stays an expression
-    /// instead of becoming the subject's neutral mouth; what no mouth shape makes is as
-    /// free as before. Measured on the five shared clips and the synthetic clip
-    /// (docs/expressions.md, "The neutral mouth's shape"): 8 raises mean r 0.770 -> 0.777
-    /// (built-in) and 0.781 -> 0.785 (ICT) and lowers the synthetic RMSE 0.0824 -> 0.0814;
-    /// from 10 up the synthetic clip's smiling photo starts to read as a smile. 0 turns it
-    /// off; rigs without ARKit-named mouth and jaw shapes are not affected.
-    pub mouth_shape_ridge: f64,
+    /// Ridge on the offsets' components along the rig's mouth, jaw and eye shapes
+    /// ([`RIDGED_SHAPE_PREFIXES`]; each shape's landmark displacement at unit length), in
+    /// the units of `alpha_xy`. What the resting, closed-lip and open-eye frames share that
+    /// looks like an expression (lips pressed or rolled in, a held smile, narrowed lids)
+    /// stays an expression instead of becoming the subject's neutral; what no such shape
+    /// makes is as free as before. Measured on the five shared clips and the synthetic clip
+    /// (docs/expressions.md, "The neutral's expression-shaped part"): 8 raises mean r 0.770
+    /// -> 0.780 (built-in) and 0.781 -> 0.787 (ICT) and keeps the synthetic RMSE at 0.082;
+    /// above it the synthetic clip's smiling photo starts to read as a smile. 0 turns it
+    /// off; rigs without ARKit-named shapes are not affected.
+    pub shape_ridge: f64,
 }
 
 impl Default for SubjectParams {
@@ -131,7 +131,7 @@ impl Default for SubjectParams {
             mouth_closed: Some((0.0, 0.3)),
             mouth_typical: Some(0.5),
             eye_typical: Some(0.5),
-            mouth_shape_ridge: 8.0,
+            shape_ridge: 8.0,
         }
     }
 }
@@ -145,7 +145,7 @@ impl SubjectParams {
         check_range("alpha_xy", self.alpha_xy, 0.0, 1e9)?;
         check_range("alpha_z", self.alpha_z, 0.0, 1e9)?;
         check_range("identity_ridge", self.identity_ridge, 0.0, 1e9)?;
-        check_range("mouth_shape_ridge", self.mouth_shape_ridge, 0.0, 1e9)?;
+        check_range("shape_ridge", self.shape_ridge, 0.0, 1e9)?;
         for (name, share) in [("mouth_typical", self.mouth_typical), ("eye_typical", self.eye_typical)] {
             if let Some(q) = share {
                 check_range(name, q, 1e-6, 1.0)?;
@@ -318,9 +318,11 @@ fn mouth_opening(l: &Landmarks68) -> f64 {
 /// frame, kept across the passes: the rig changes little between passes, so a frame's last
 /// pose and weights are a closer start than its neighbour's). A frame without one (the
 /// first pass, or after a failure) starts from the frame before it, as a clip is solved.
-/// ARKit name prefixes of the shapes whose directions [`SubjectParams::mouth_shape_ridge`]
-/// holds the neutral's offsets back from.
-pub const MOUTH_SHAPE_PREFIXES: &[&str] = &["mouth", "jaw"];
+/// ARKit name prefixes of the shapes whose directions [`SubjectParams::shape_ridge`]
+/// holds the neutral's offsets back from: the mouth's, the jaw's and the eyes' (the brows',
+/// cheeks' and nose's were measured and left out, docs/expressions.md "The neutral's
+/// expression-shaped part").
+pub const RIDGED_SHAPE_PREFIXES: &[&str] = &["mouth", "jaw", "eye"];
 
 /// Each shape of `rig` named with one of `prefixes`: its landmark displacement over the
 /// mapped landmarks, `[l * 3 + axis]`, scaled to unit length (shapes that move no mapped
@@ -345,7 +347,7 @@ fn shape_directions(rig: &BlendshapeRig, prefixes: &[&str]) -> Vec<nalgebra::DVe
     out
 }
 
-/// One pass's offset update with [`SubjectParams::mouth_shape_ridge`]: the per-landmark
+/// One pass's offset update with [`SubjectParams::shape_ridge`]: the per-landmark
 /// systems `(a_l + damp) d_l = b_l` joined into one, plus `ridge * sum_k (u_k . (o + d))^2`
 /// over the shape directions `u_k`, with `o` the offsets so far (so the ridge holds the
 /// whole offset, not the step, back from each direction).
@@ -502,9 +504,9 @@ pub fn fit_subject_with_identity(
         43 | 44 | 46 | 47 => Some(1),
         _ => None,
     };
-    // the directions of the rig's mouth and jaw shapes (empty without the ridge)
-    let mouth_span = if params.mouth_shape_ridge > 0.0 {
-        shape_directions(rig, MOUTH_SHAPE_PREFIXES)
+    // the directions of the rig's mouth, jaw and eye shapes (empty without the ridge)
+    let shape_span = if params.shape_ridge > 0.0 {
+        shape_directions(rig, RIDGED_SHAPE_PREFIXES)
     } else {
         Vec::new()
     };
@@ -698,13 +700,13 @@ pub fn fit_subject_with_identity(
             }
         }
         let damp = Matrix3::from_diagonal(&Vector3::new(params.alpha_xy, params.alpha_xy, params.alpha_z));
-        if !mouth_span.is_empty() {
+        if !shape_span.is_empty() {
             solve_offsets_along_span(
                 &a,
                 &b,
                 damp,
-                &mouth_span,
-                params.mouth_shape_ridge,
+                &shape_span,
+                params.shape_ridge,
                 &mut offsets,
                 &mut current,
             );
@@ -977,7 +979,7 @@ mod tests {
             // the mouth fitted on the resting frames (the held shape may part the lips,
             // which would keep its frames out of the closed-mouth choice)
             let params = SubjectParams {
-                mouth_shape_ridge: ridge,
+                shape_ridge: ridge,
                 mouth_closed: None,
                 mouth_typical: None,
                 ..SubjectParams::default()
@@ -990,7 +992,7 @@ mod tests {
             "without the ridge the neutral takes {free} of the shape held at 0.3"
         );
         // the default holds some of it back; a ridge well above the data term nearly all
-        let held = along(&fit(SubjectParams::default().mouth_shape_ridge));
+        let held = along(&fit(SubjectParams::default().shape_ridge));
         assert!(
             held < 0.95 * free,
             "neutral along the shape {held}, without the ridge {free}"
@@ -1000,17 +1002,17 @@ mod tests {
             strong.abs() < 0.1 * free,
             "neutral along the shape {strong}, without the ridge {free}"
         );
-        // an offset no mouth or jaw shape makes stays free: the nose's
+        // an offset no ridged shape makes stays free: the nose's
         let nose = turning_frames(&rig, camera, |_, l, x| {
             if (27..36).contains(&l) {
                 x.y += 0.3;
             }
         });
         let nose_dy = |ridge: f64| {
-            let fit = fit_plain(&rig, camera, &nose, |p| p.mouth_shape_ridge = ridge);
+            let fit = fit_plain(&rig, camera, &nose, |p| p.shape_ridge = ridge);
             (27..36).map(|l| fit.offsets[l].y).sum::<f64>() / 9.0
         };
-        let (with, without) = (nose_dy(1e3), nose_dy(0.0));
+        let (with, without) = (nose_dy(SubjectParams::default().shape_ridge), nose_dy(0.0));
         assert!(
             without > 0.1 && (with - without).abs() < 0.05 * without,
             "nose offset {with} with the ridge, {without} without"
