@@ -12,6 +12,8 @@ is compared with it shape by shape:
   curve scores 0; a shape the rig does not have is listed as missing, not scored;
 * "pinned": the fraction of frames where facecap's weight sits at its upper bound
   (>= 0.98) while MediaPipe's is below 0.5 there (the issue's "at its bound" check);
+* also printed: the mean r over the pairs where MediaPipe's std reaches 0.10 and 0.15
+  (the shapes it moves clearly; the headline figure stays the one over std >= 0.05);
 * "offset": facecap's median over the clip minus MediaPipe's, for every shape both have
   (moving or not). Pearson's r cannot see a constant offset (a resting face that reads as
   a frown); the mean |offset| over all (clip, shape) pairs is printed per rig.
@@ -41,6 +43,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 
 MIN_REF_STD = 0.05
+# also reported: the mean r over the pairs where MediaPipe's std reaches these
+CLEAR_REF_STD = (0.10, 0.15)
 BOUND = 0.98
 
 
@@ -244,14 +248,30 @@ def main():
                 per_shape.setdefault(b, []).append(r)
         mean_r = mean(all_r)
         mean_offset = mean(offsets)
+        # the same mean over the pairs where the reference moves more (its small motions
+        # are where its own noise and habits weigh most)
+        by_motion = {}
+        for t in CLEAR_REF_STD:
+            rs_t = [
+                s["r"]
+                for pc in per_clip.values()
+                for s in pc["shapes"].values()
+                if s["r"] is not None and s["ref_std"] >= t
+            ]
+            by_motion[f"{t:.2f}"] = {"mean_r": mean(rs_t), "pairs": len(rs_t)}
         result["rigs"][rig] = {
             "mean_r": mean_r,
+            "mean_r_by_ref_std": by_motion,
             "mean_abs_offset": mean_offset,
             "per_clip": per_clip,
             "per_shape": {b: mean(v) for b, v in per_shape.items()},
         }
         print(f"\n== rig {rig}: mean r {mean_r:.3f} over {len(all_r)} (clip, shape) pairs")
         print(f"   mean |median offset| {mean_offset:.4f} over {len(offsets)} (clip, shape) pairs")
+        print(
+            "   where the reference moves more: "
+            + ", ".join(f"std >= {t}: mean r {v['mean_r']:.3f} over {v['pairs']}" for t, v in by_motion.items())
+        )
         for c in clips:
             pc = per_clip[c]
             print(f"  {c:34s} mean r {pc['mean_r']:.3f}  shapes {len(pc['r']):2d}  pinned>5%: {pc['pinned'] or '-'}")
