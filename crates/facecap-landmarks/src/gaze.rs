@@ -823,8 +823,52 @@ impl GazeGains {
 /// `u` (the eyes move together); when both are, every weight is 0. Non-finite gains or
 /// offsets give 0, never NaN.
 pub fn gaze_weights(frame: &IrisFrame, rest: &GazeRest, gains: &GazeGains) -> [f64; 8] {
-    let offset = |e: &EyeEstimate, r: &EyeRest| e.valid().then_some((e.u - r.u, e.v - r.v));
-    let (ro, lo) = (offset(&frame.right, &rest.right), offset(&frame.left, &rest.left));
+    gaze_weights_in_head(frame, rest, gains, HeadTurn::default())
+}
+
+/// Iris offset (eye widths) that a head rotation of one radian makes at a fixed line of
+/// sight: the eyes keep looking where they looked, so in the head they turn the other
+/// way. The iris centre lies about an eyeball radius ([`EYEBALL_RADIUS_EYE_WIDTHS`], 0.4)
+/// in front of the eyeball's centre, the eye corners the offsets are measured from about
+/// 0.15 eye widths; the difference, 0.25, is what the image shows of the eye's turn in
+/// the head. Measured as the ratio of the head rotation's and the iris offset's
+/// coefficients in a least-squares fit of MediaPipe's `eyeLook*` scores (eye-in-head by
+/// ARKit's definition) on the five shared clips: 0.19-0.37 vertically, 0.23-0.29
+/// horizontally on the clips with the widest head turns (docs/gaze.md, "Head turns").
+pub const HEAD_TURN_EYE_WIDTHS: f64 = 0.25;
+
+/// A head rotation away from the subject's resting one, against the line of sight to
+/// the camera (radians): pitch positive chin down and yaw positive towards the subject's
+/// right, as `pose.csv`'s `Rx` and `Ry`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HeadTurn {
+    /// Pitch minus the resting pitch.
+    pub pitch: f64,
+    /// Yaw minus the resting yaw.
+    pub yaw: f64,
+}
+
+/// [`gaze_weights`] of the eyes' rotation in the head: the iris offsets less what the
+/// head's turn `head` away from its rest moves them by at a fixed line of sight
+/// ([`HEAD_TURN_EYE_WIDTHS`] per radian; a head pitched down with the eyes on the camera
+/// looks up in the head, as ARKit's `eyeLookUp` says). A non-finite `head` counts as no
+/// turn.
+pub fn gaze_weights_in_head(frame: &IrisFrame, rest: &GazeRest, gains: &GazeGains, head: HeadTurn) -> [f64; 8] {
+    let (pitch, yaw) = if head.pitch.is_finite() && head.yaw.is_finite() {
+        (head.pitch, head.yaw)
+    } else {
+        (0.0, 0.0)
+    };
+    let k = HEAD_TURN_EYE_WIDTHS;
+    // `u` grows towards each eye's inner corner: a yaw moves both irises the same way in
+    // the image, so towards one eye's inner corner and the other's outer one
+    let offset = |e: &EyeEstimate, r: &EyeRest, side: f64| {
+        e.valid().then_some((e.u - r.u - side * k * yaw, e.v - r.v - k * pitch))
+    };
+    let (ro, lo) = (
+        offset(&frame.right, &rest.right, -1.0),
+        offset(&frame.left, &rest.left, 1.0),
+    );
     let (ro, lo) = match (ro, lo) {
         (Some(r), Some(l)) => (r, l),
         (Some(r), None) => (r, (-r.0, r.1)),

@@ -7,8 +7,8 @@ mod gaze_common;
 
 use facecap_core::landmarks::Landmarks68;
 use facecap_landmarks::gaze::{
-    gaze_weights, EyeEstimate, EyeRest, EyeStatus, GazeGains, GazeRest, IrisEstimator, IrisFrame, IrisParams,
-    GAZE_WEIGHT_NAMES,
+    gaze_weights, gaze_weights_in_head, EyeEstimate, EyeRest, EyeStatus, GazeGains, GazeRest, HeadTurn, IrisEstimator,
+    IrisFrame, IrisParams, GAZE_WEIGHT_NAMES, HEAD_TURN_EYE_WIDTHS,
 };
 use gaze_common::{face, render};
 use image::GrayImage;
@@ -405,4 +405,64 @@ fn the_estimator_is_shareable_between_threads() {
         .unwrap()
     });
     assert_eq!(here, there);
+}
+
+#[test]
+fn a_head_turn_at_a_fixed_line_of_sight_turns_the_eyes_in_the_head() {
+    let rest = GazeRest {
+        right: EyeRest { u: 0.5, v: 0.0 },
+        left: EyeRest { u: 0.5, v: 0.0 },
+    };
+    let gains = GazeGains {
+        look_in: 10.0,
+        look_out: 10.0,
+        look_up: 10.0,
+        look_down: 10.0,
+    };
+    let idx = |name: &str| GAZE_WEIGHT_NAMES.iter().position(|n| *n == name).unwrap();
+    let at_rest = IrisFrame {
+        right: eye(0.5, 0.0),
+        left: eye(0.5, 0.0),
+    };
+    let k = HEAD_TURN_EYE_WIDTHS;
+    // irises where they rest in the image, head pitched chin down by 0.2: the eyes look up
+    // in the head (as they must to stay on the camera)
+    let w = gaze_weights_in_head(&at_rest, &rest, &gains, HeadTurn { pitch: 0.2, yaw: 0.0 });
+    for side in ["Left", "Right"] {
+        let up = w[idx(&format!("eyeLookUp{side}"))];
+        assert!((up - 10.0 * k * 0.2).abs() < 1e-12, "eyeLookUp{side} {up}");
+        assert_eq!(w[idx(&format!("eyeLookDown{side}"))], 0.0);
+    }
+    // head turned towards the subject's right by 0.2: the eyes turn to the subject's left
+    // in the head, the left eye out and the right eye in
+    let w = gaze_weights_in_head(&at_rest, &rest, &gains, HeadTurn { pitch: 0.0, yaw: 0.2 });
+    assert!((w[idx("eyeLookOutLeft")] - 10.0 * k * 0.2).abs() < 1e-12);
+    assert!((w[idx("eyeLookInRight")] - 10.0 * k * 0.2).abs() < 1e-12);
+    assert_eq!(w[idx("eyeLookInLeft")], 0.0);
+    assert_eq!(w[idx("eyeLookOutRight")], 0.0);
+    // the eyes turned with the head (irises moved in the image by the same offset): no
+    // turn in the head
+    let with_head = IrisFrame {
+        right: eye(0.5 - k * 0.2, 0.0),
+        left: eye(0.5 + k * 0.2, 0.0),
+    };
+    let w = gaze_weights_in_head(&with_head, &rest, &gains, HeadTurn { pitch: 0.0, yaw: 0.2 });
+    assert!(w.iter().all(|x| x.abs() < 1e-12), "{w:?}");
+    // no turn, or a non-finite one, is `gaze_weights`
+    let f = IrisFrame {
+        right: eye(0.55, 0.03),
+        left: eye(0.45, 0.03),
+    };
+    for head in [
+        HeadTurn::default(),
+        HeadTurn {
+            pitch: f64::NAN,
+            yaw: 0.1,
+        },
+    ] {
+        assert_eq!(
+            gaze_weights_in_head(&f, &rest, &gains, head),
+            gaze_weights(&f, &rest, &gains)
+        );
+    }
 }

@@ -18,7 +18,7 @@ use facecap_core::camera::{pose_row, Intrinsics, ModelToCamera};
 use facecap_core::landmarks::{Landmarks68, NUM_LANDMARKS};
 use facecap_geom::pnp::{solve_pnp, PnpParams};
 use facecap_io::csv::{FrameCsvWriter, FrameRow, POSE_COLUMNS};
-use facecap_landmarks::gaze::{GazeGains, GazeRest, IrisFrame};
+use facecap_landmarks::gaze::{GazeGains, GazeRest, HeadTurn, IrisFrame};
 use facecap_solve::{
     AnySolver, BlendshapeRig, DensePoints, ExpressionSolver, Method, ObjectiveParams, ShapePriors, Solution, SolveState,
 };
@@ -229,6 +229,9 @@ pub struct ExpressionSink<'a> {
     /// The last frame's head pose (the PnP's warm start beside a 2D solver).
     prev_pose: Option<ModelToCamera>,
     gaze: Gaze,
+    /// While set, [`ExpressionSink::solve_frame`] leaves the eyes' weights
+    /// ([`ExpressionSink::eye_conventions`]) to its caller.
+    defer_eyes: bool,
     /// The rig's `eyeBlink*` shapes, their sides and the shapes a closing lid drives
     /// (see [`blink_weight`], [`closed_eye_weights`]).
     blink_idx: Vec<BlinkShape>,
@@ -335,6 +338,11 @@ struct Gaze {
     rest_from_clip: bool,
     /// Iris estimates so far (the running rest when frames stream).
     seen: Vec<IrisFrame>,
+    /// The subject's resting head rotation `(pitch, yaw)` (`pose.csv`'s `Rx`, `Ry`), the
+    /// same median as `rest`; the gaze is the eyes' turn in the head from it.
+    rest_head: Option<(f64, f64)>,
+    /// Head rotations so far (the running rest when frames stream).
+    seen_head: Vec<(f64, f64)>,
 }
 
 /// Gain on the solved `eyeBlink*` weights. dlib's 68 points never close an eye: on the
@@ -538,6 +546,35 @@ fn smooth_run(run: &mut [SolvedFrame]) {
     }
 }
 
+/// Per axis the median of finite head rotations `(pitch, yaw)`; `None` without one.
+fn median_head(heads: &[(f64, f64)]) -> Option<(f64, f64)> {
+    let med = |pick: fn(&(f64, f64)) -> f64| {
+        let mut v: Vec<f64> = heads.iter().map(pick).filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        Some(v[v.len() / 2])
+    };
+    Some((med(|h| h.0)?, med(|h| h.1)?))
+}
+
+/// A pose's head rotation `(pitch, yaw)` against the line of sight to the camera:
+/// `pose.csv`'s `Rx` (positive chin down) and `Ry` (positive towards the subject's right),
+/// which are against the optical axis, plus the angle of the head's position off that
+/// axis. A head below the axis looks up to the camera as a head pitched chin down does;
+/// a head right of it (image right) looks left to it, as a head turned to the image's
+/// right does (`Ry < 0`). Measured against the rotation alone (docs/gaze.md, "Head
+/// turns"): mean r 0.7900 -> 0.7915 (built-in), 0.7993 -> 0.8003 (ICT).
+fn head_of(pose: Option<&ModelToCamera>) -> Option<(f64, f64)> {
+    let [tx, ty, tz, rx, ry, _] = facecap_core::camera::pose_row(pose);
+    if !(tz > 0.0) {
+        return None;
+    }
+    let (pitch, yaw) = (rx + ty.atan2(tz), ry - tx.atan2(tz));
+    (pitch.is_finite() && yaw.is_finite()).then_some((pitch, yaw))
+}
+
 /// Iris estimates kept for the running resting gaze, at most.
 const GAZE_SEEN_MAX: usize = 100_000;
 /// Frames between updates of the running resting gaze (and before the first).
@@ -557,8 +594,9 @@ impl Gaze {
         self.idx.iter().any(Option::is_some)
     }
 
-    /// Writes this frame's gaze weights into `weights`.
-    fn apply(&mut self, iris: Option<&IrisFrame>, weights: &mut [f64]) {
+    /// Writes this frame's gaze weights into `weights`; `head` is the frame's head
+    /// rotation `(pitch, yaw)` when it has a pose.
+    fn apply(&mut self, iris: Option<&IrisFrame>, head: Option<(f64, f64)>, weights: &mut [f64]) {
         if !self.active() {
             return;
         }
@@ -566,13 +604,24 @@ impl Gaze {
         if !self.rest_from_clip && self.seen.len() < GAZE_SEEN_MAX {
             // streaming: the running median of the frames so far stands in for the clip's
             self.seen.push(*iris);
+            if let Some(h) = head {
+                self.seen_head.push(h);
+            }
             let seen = self.seen.len();
             if seen >= GAZE_REST_EVERY && (seen % GAZE_REST_EVERY == 0 || self.rest.is_none()) {
                 self.rest = GazeRest::median_of(&self.seen);
+                self.rest_head = median_head(&self.seen_head);
             }
         }
         let Some(rest) = self.rest else { return };
-        let g = facecap_landmarks::gaze::gaze_weights(iris, &rest, &GazeGains::default());
+        let turn = match (head, self.rest_head) {
+            (Some(h), Some(r)) => HeadTurn {
+                pitch: h.0 - r.0,
+                yaw: h.1 - r.1,
+            },
+            _ => HeadTurn::default(),
+        };
+        let g = facecap_landmarks::gaze::gaze_weights_in_head(iris, &rest, &GazeGains::default(), turn);
         for (slot, v) in self.idx.iter().zip(g) {
             if let Some(k) = slot {
                 weights[*k] = v;
@@ -661,6 +710,7 @@ impl<'a> ExpressionSink<'a> {
             prev_solver_weights: vec![0.0; setup.rig.names.len()],
             prev_pose: None,
             gaze: Gaze::new(&setup.rig.names),
+            defer_eyes: false,
             blink_idx: BlinkShape::of_rig(&setup.rig.names),
             live: None,
             companion: None,
@@ -876,6 +926,22 @@ impl<'a> ExpressionSink<'a> {
         self.write_frame(out, face)
     }
 
+    /// The eyes' weights of a solved frame: the gaze shapes from the irises (the eyes' turn
+    /// in the head), then `eyeBlink*` after the gain and the iris damping, and what a
+    /// closing lid drives.
+    fn eye_conventions(&mut self, out: &mut SolvedFrame, iris: Option<&IrisFrame>) {
+        self.gaze.apply(iris, head_of(out.pose.as_ref()), &mut out.weights);
+        for b in &self.blink_idx {
+            let c = iris.map_or(0.0, |i| match b.side {
+                Some('L') => i.left.confidence,
+                Some('R') => i.right.confidence,
+                _ => 0.5 * (i.left.confidence + i.right.confidence),
+            });
+            out.weights[b.blink] = blink_weight(out.weights[b.blink], c);
+            b.drive_closed_eye(&mut out.weights);
+        }
+    }
+
     /// Solves one frame (weights, pose; failures recorded), writing nothing.
     fn solve_frame(&mut self, sv: &mut Solving, face: &TrackedFace) -> SolvedFrame {
         let Solving {
@@ -909,22 +975,15 @@ impl<'a> ExpressionSink<'a> {
                         self.result.dense_frames += 1;
                     }
                     out.weights.copy_from_slice(&solution.weights);
-                    self.gaze.apply(face.iris.as_ref(), &mut out.weights);
-                    for b in &self.blink_idx {
-                        let c = face.iris.as_ref().map_or(0.0, |i| match b.side {
-                            Some('L') => i.left.confidence,
-                            Some('R') => i.right.confidence,
-                            _ => 0.5 * (i.left.confidence + i.right.confidence),
-                        });
-                        out.weights[b.blink] = blink_weight(out.weights[b.blink], c);
-                        b.drive_closed_eye(&mut out.weights);
-                    }
-                    self.prev_solver_weights.copy_from_slice(&solution.weights);
-                    out.reprojection_px = solution.reprojection_error(l);
                     out.pose = match solution.pose {
                         Some(p) => Some(p),
                         None => self.pnp_pose(&solution.weights, l, prev_pose),
                     };
+                    if !self.defer_eyes {
+                        self.eye_conventions(&mut out, face.iris.as_ref());
+                    }
+                    self.prev_solver_weights.copy_from_slice(&solution.weights);
+                    out.reprojection_px = solution.reprojection_error(l);
                 }
                 Err(e) => {
                     self.result.failures.push((face.index, e));
@@ -1121,7 +1180,21 @@ impl ExpressionSink<'_> {
         self.gaze.rest = GazeRest::median_of(&irises);
         self.gaze.rest_from_clip = self.gaze.rest.is_some();
         let mut sv = Solving::new(solver);
-        let solved = faces.iter().map(|face| self.solve_frame(&mut sv, face)).collect();
+        // every frame's pose first: the resting head is the clip's median, as the gaze's
+        self.defer_eyes = true;
+        let mut solved: Vec<SolvedFrame> = faces.iter().map(|face| self.solve_frame(&mut sv, face)).collect();
+        self.defer_eyes = false;
+        let heads: Vec<(f64, f64)> = solved
+            .iter()
+            .filter(|f| f.success)
+            .filter_map(|f| head_of(f.pose.as_ref()))
+            .collect();
+        self.gaze.rest_head = median_head(&heads);
+        for (out, face) in solved.iter_mut().zip(faces) {
+            if out.success {
+                self.eye_conventions(out, face.iris.as_ref());
+            }
+        }
         Ok((solved, sv))
     }
 }
