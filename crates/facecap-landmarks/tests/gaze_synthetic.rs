@@ -304,8 +304,8 @@ fn eye(u: f64, v: f64) -> EyeEstimate {
     }
 }
 
-#[test]
-fn gaze_weights_follow_the_arkit_sides() {
+/// Both eyes resting at `(0.5, 0)`, every gain 10.
+fn centred_rest_and_even_gains() -> (GazeRest, GazeGains) {
     let rest = GazeRest {
         right: EyeRest { u: 0.5, v: 0.0 },
         left: EyeRest { u: 0.5, v: 0.0 },
@@ -316,7 +316,17 @@ fn gaze_weights_follow_the_arkit_sides() {
         look_up: 10.0,
         look_down: 10.0,
     };
-    let idx = |name: &str| GAZE_WEIGHT_NAMES.iter().position(|n| *n == name).unwrap();
+    (rest, gains)
+}
+
+/// Index of a gaze weight by name.
+fn idx(name: &str) -> usize {
+    GAZE_WEIGHT_NAMES.iter().position(|n| *n == name).unwrap()
+}
+
+#[test]
+fn gaze_weights_follow_the_arkit_sides() {
+    let (rest, gains) = centred_rest_and_even_gains();
     // looking towards the subject's left (image right): the right eye's iris moves to its
     // inner corner (u up), the left eye's to its outer corner (u down); and down
     let f = IrisFrame {
@@ -409,17 +419,7 @@ fn the_estimator_is_shareable_between_threads() {
 
 #[test]
 fn a_head_turn_at_a_fixed_line_of_sight_turns_the_eyes_in_the_head() {
-    let rest = GazeRest {
-        right: EyeRest { u: 0.5, v: 0.0 },
-        left: EyeRest { u: 0.5, v: 0.0 },
-    };
-    let gains = GazeGains {
-        look_in: 10.0,
-        look_out: 10.0,
-        look_up: 10.0,
-        look_down: 10.0,
-    };
-    let idx = |name: &str| GAZE_WEIGHT_NAMES.iter().position(|n| *n == name).unwrap();
+    let (rest, gains) = centred_rest_and_even_gains();
     let at_rest = IrisFrame {
         right: eye(0.5, 0.0),
         left: eye(0.5, 0.0),

@@ -568,7 +568,7 @@ fn median_head(heads: &[(f64, f64)]) -> Option<(f64, f64)> {
 /// turns"): mean r 0.7900 -> 0.7915 (built-in), 0.7993 -> 0.8003 (ICT).
 fn head_of(pose: Option<&ModelToCamera>) -> Option<(f64, f64)> {
     let [tx, ty, tz, rx, ry, _] = facecap_core::camera::pose_row(pose);
-    if !(tz > 0.0) {
+    if tz.is_nan() || tz <= 0.0 {
         return None;
     }
     let (pitch, yaw) = (rx + ty.atan2(tz), ry - tx.atan2(tz));
