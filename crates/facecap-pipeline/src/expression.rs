@@ -389,8 +389,12 @@ pub fn blink_weight(solved: f64, iris_confidence: f64) -> f64 {
 /// van der Steen & Steinman 1985; Riggs, Kelly, Manning & Moore 1987), and ARKit's scores
 /// carry it: MediaPipe's `eyeLookDown` follows its own `eyeBlink` with r 0.74-0.90 on the
 /// shared clips. Measured (docs/expressions.md, "The closed eye"): mean r +0.014 (dlib68)
-/// and +0.033 (mesh, whose iris gaze stays level through a blink).
-pub const CLOSED_EYE_LOOK_DOWN: f64 = 0.4;
+/// and +0.033 (mesh, whose iris gaze stays level through a blink). 0.4 until the gaze
+/// became the eyes' turn in the head (docs/gaze.md, "Head turns"), which reads more of
+/// the downward look itself; then 0.3 gave mean r 0.7915 -> 0.7924 (built-in) and 0.8003
+/// -> 0.8007 (ICT), and the synthetic RMSE 0.0827 -> 0.0812 (0.2: 0.7924 / 0.7999 /
+/// 0.0801; 0.5: 0.7905 / 0.7995 / 0.0845).
+pub const CLOSED_EYE_LOOK_DOWN: f64 = 0.3;
 
 /// How much of `eyeBlink*` is added to `eyeSquint*` on the same side (clamped to 1). A
 /// blink is the palpebral part of orbicularis oculi, the muscle whose contraction is the
