@@ -744,7 +744,9 @@ impl GazeRest {
     }
 }
 
-fn median(x: &mut [f64]) -> Option<f64> {
+/// The median of `x` (the mean of the middle two for an even count; sorts `x`), as the
+/// resting gaze takes it; `None` when `x` is empty.
+pub fn median(x: &mut [f64]) -> Option<f64> {
     if x.is_empty() {
         return None;
     }

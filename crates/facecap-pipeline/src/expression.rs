@@ -229,9 +229,6 @@ pub struct ExpressionSink<'a> {
     /// The last frame's head pose (the PnP's warm start beside a 2D solver).
     prev_pose: Option<ModelToCamera>,
     gaze: Gaze,
-    /// While set, [`ExpressionSink::solve_frame`] leaves the eyes' weights
-    /// ([`ExpressionSink::eye_conventions`]) to its caller.
-    defer_eyes: bool,
     /// The rig's `eyeBlink*` shapes, their sides and the shapes a closing lid drives
     /// (see [`blink_weight`], [`closed_eye_weights`]).
     blink_idx: Vec<BlinkShape>,
@@ -550,15 +547,12 @@ fn smooth_run(run: &mut [SolvedFrame]) {
     }
 }
 
-/// Per axis the median of finite head rotations `(pitch, yaw)`; `None` without one.
+/// Per axis the median of finite head rotations `(pitch, yaw)` (the resting gaze's
+/// median); `None` without one.
 fn median_head(heads: &[(f64, f64)]) -> Option<(f64, f64)> {
     let med = |pick: fn(&(f64, f64)) -> f64| {
         let mut v: Vec<f64> = heads.iter().map(pick).filter(|x| x.is_finite()).collect();
-        if v.is_empty() {
-            return None;
-        }
-        v.sort_by(f64::total_cmp);
-        Some(v[v.len() / 2])
+        facecap_landmarks::gaze::median(&mut v)
     };
     Some((med(|h| h.0)?, med(|h| h.1)?))
 }
@@ -571,7 +565,7 @@ fn median_head(heads: &[(f64, f64)]) -> Option<(f64, f64)> {
 /// right does (`Ry < 0`). Measured against the rotation alone (docs/gaze.md, "Head
 /// turns"): mean r 0.7900 -> 0.7915 (built-in), 0.7993 -> 0.8003 (ICT).
 fn head_of(pose: Option<&ModelToCamera>) -> Option<(f64, f64)> {
-    let [tx, ty, tz, rx, ry, _] = facecap_core::camera::pose_row(pose);
+    let [tx, ty, tz, rx, ry, _] = pose_row(pose);
     if tz.is_nan() || tz <= 0.0 {
         return None;
     }
@@ -714,7 +708,6 @@ impl<'a> ExpressionSink<'a> {
             prev_solver_weights: vec![0.0; setup.rig.names.len()],
             prev_pose: None,
             gaze: Gaze::new(&setup.rig.names),
-            defer_eyes: false,
             blink_idx: BlinkShape::of_rig(&setup.rig.names),
             live: None,
             companion: None,
@@ -926,7 +919,10 @@ impl<'a> ExpressionSink<'a> {
     }
 
     fn solve_one(&mut self, sv: &mut Solving, face: &TrackedFace) -> Result<()> {
-        let out = self.solve_frame(sv, face);
+        let mut out = self.solve_frame(sv, face);
+        if out.success {
+            self.eye_conventions(&mut out, face.iris.as_ref());
+        }
         self.write_frame(out, face)
     }
 
@@ -946,7 +942,8 @@ impl<'a> ExpressionSink<'a> {
         }
     }
 
-    /// Solves one frame (weights, pose; failures recorded), writing nothing.
+    /// Solves one frame (weights, pose; failures recorded), writing nothing. The eyes'
+    /// weights are the caller's ([`ExpressionSink::eye_conventions`]).
     fn solve_frame(&mut self, sv: &mut Solving, face: &TrackedFace) -> SolvedFrame {
         let Solving {
             solver,
@@ -983,9 +980,6 @@ impl<'a> ExpressionSink<'a> {
                         Some(p) => Some(p),
                         None => self.pnp_pose(&solution.weights, l, prev_pose),
                     };
-                    if !self.defer_eyes {
-                        self.eye_conventions(&mut out, face.iris.as_ref());
-                    }
                     self.prev_solver_weights.copy_from_slice(&solution.weights);
                     out.reprojection_px = solution.reprojection_error(l);
                 }
@@ -1185,9 +1179,7 @@ impl ExpressionSink<'_> {
         self.gaze.rest_from_clip = self.gaze.rest.is_some();
         let mut sv = Solving::new(solver);
         // every frame's pose first: the resting head is the clip's median, as the gaze's
-        self.defer_eyes = true;
         let mut solved: Vec<SolvedFrame> = faces.iter().map(|face| self.solve_frame(&mut sv, face)).collect();
-        self.defer_eyes = false;
         let heads: Vec<(f64, f64)> = solved
             .iter()
             .filter(|f| f.success)

@@ -314,10 +314,6 @@ fn mouth_opening(l: &Landmarks68) -> f64 {
     gap / (p[36] - p[45]).norm()
 }
 
-/// Solves `frames`, each from its own solution of the previous pass in `states` (one per
-/// frame, kept across the passes: the rig changes little between passes, so a frame's last
-/// pose and weights are a closer start than its neighbour's). A frame without one (the
-/// first pass, or after a failure) starts from the frame before it, as a clip is solved.
 /// ARKit name prefixes of the shapes whose directions [`SubjectParams::shape_ridge`]
 /// holds the neutral's offsets back from: the mouth's, the jaw's and the eyes' (the brows',
 /// cheeks' and nose's were measured and left out, docs/expressions.md "The neutral's
@@ -398,6 +394,10 @@ fn solve_offsets_along_span(
     }
 }
 
+/// Solves `frames`, each from its own solution of the previous pass in `states` (one per
+/// frame, kept across the passes: the rig changes little between passes, so a frame's last
+/// pose and weights are a closer start than its neighbour's). A frame without one (the
+/// first pass, or after a failure) starts from the frame before it, as a clip is solved.
 fn solve_all(solver: &Exact3dSolver, frames: &[&Landmarks68], states: &mut [SolveState]) -> Vec<Option<SolvedSample>> {
     let n = solver.num_shapes();
     let mut ws = solver.workspace();
@@ -943,9 +943,6 @@ mod tests {
         assert!(closed < 0.25 * all, "lower lip offset {closed}, all frames {all}");
     }
 
-    /// A smile held with the lips together on 4 frames in 10 (the mouth corners out and
-    /// up): the closed-mouth frames include it, and only the typical-expression choice
-    /// keeps it out of the neutral mouth.
     #[test]
     fn a_mouth_shape_held_on_most_frames_stays_an_expression() {
         // the subject holds the rig's mouth shape 2 at about 0.3 on 7 frames in 10 (lips
@@ -1019,6 +1016,9 @@ mod tests {
         );
     }
 
+    /// A smile held with the lips together on 4 frames in 10 (the mouth corners out and
+    /// up): the closed-mouth frames include it, and only the typical-expression choice
+    /// keeps it out of the neutral mouth.
     #[test]
     fn a_held_smile_stays_out_of_the_neutral_mouth() {
         let rig = BlendshapeRig::synthetic(6, 11);
