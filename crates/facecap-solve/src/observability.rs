@@ -63,6 +63,26 @@ const UNSEEN: [(&str, &str); 4] = [
 /// Ridge (px^2 at IOD 100 px) of a shape with independence 1; see [`default_priors`].
 pub const BASE_RIDGE: f64 = 15.0;
 
+/// Measured multipliers of the observability ridge, by ARKit shape (either side).
+///
+/// The ridge `BASE_RIDGE / independence^2` sets how readily a shape takes landmark motion
+/// that its neighbours could also explain. On real video (face mesh front end, the five
+/// shared clips against MediaPipe's blendshape scores) it let the lip shapes that share
+/// their motion take each other's: `mouthRollUpper` and `mouthLowerDown` swung over 2.9x and
+/// 2.5x MediaPipe's range, `mouthFunnel` 1.7x, `mouthFrown` fired (up to 1.0) where
+/// MediaPipe's stayed under 0.02, while `mouthStretch` reached 0.6x. These multipliers bring
+/// each one's range to 1.0-1.2x the reference's (std over the clip); mean r 0.792 -> 0.798
+/// (built-in rig), 0.801 -> 0.806 (ICT), synthetic truth RMSE 0.081 -> 0.078
+/// (docs/expressions.md, "Prior strength per lip shape").
+pub const ARKIT_RIDGE_SCALE: [(&str, f64); 6] = [
+    ("mouthRollUpper", 6.0),
+    ("mouthLowerDown", 4.0),
+    ("mouthFunnel", 3.0),
+    ("mouthFrown", 3.0),
+    ("mouthPress", 1.5),
+    ("mouthStretch", 0.33),
+];
+
 /// Multiplier of the temporal weight on `eyeBlink*`: a blink closes and opens within
 /// 3-6 frames at 30 fps, so the full temporal term (tuned against landmark jitter on the
 /// slower mouth and brow shapes) would delay it and cut its peak.
@@ -282,11 +302,21 @@ pub fn analyse(rig: &BlendshapeRig) -> Vec<ShapeVisibility> {
 }
 
 /// The default priors of `rig` for 68-landmark input (module docs): unseen shapes fixed,
-/// ridge `BASE_RIDGE / max(independence, 0.1)^2` on the others, ARKit antagonists
+/// ridge `BASE_RIDGE / max(independence, 0.1)^2` on the others (times [`ridge_scale`]
+/// for the lip shapes [`ARKIT_RIDGE_SCALE`] lists), ARKit antagonists
 /// exclusive, ARKit's coupled shapes coupled ([`with_arkit_coupling`]), the temporal weight
 /// cut to [`BLINK_TEMPORAL`] on blinks, every landmark weighted 1.
 pub fn default_priors(rig: &BlendshapeRig) -> ShapePriors {
     with_arkit_coupling(rig, uncoupled_priors(rig))
+}
+
+/// The [`ARKIT_RIDGE_SCALE`] multiplier of shape `name` (1 for a shape not listed).
+pub fn ridge_scale(name: &str) -> f64 {
+    let base = split_side(name).0;
+    ARKIT_RIDGE_SCALE
+        .iter()
+        .find(|(n, _)| *n == base)
+        .map_or(1.0, |&(_, m)| m)
 }
 
 /// [`default_priors`] without ARKit's coupled shapes.
@@ -296,7 +326,7 @@ pub fn uncoupled_priors(rig: &BlendshapeRig) -> ShapePriors {
     let mut p = ShapePriors::neutral(n);
     for (k, v) in table.iter().enumerate() {
         p.fixed[k] = v.fixed_because.is_some();
-        p.ridge[k] = BASE_RIDGE / v.independence.max(0.1).powi(2);
+        p.ridge[k] = BASE_RIDGE / v.independence.max(0.1).powi(2) * ridge_scale(&v.name);
         if split_side(&v.name).0 == "eyeBlink" {
             p.temporal[k] = BLINK_TEMPORAL;
         }
@@ -334,6 +364,21 @@ pub fn with_arkit_coupling(rig: &BlendshapeRig, mut priors: ShapePriors) -> Shap
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn the_lip_ridge_scales_apply_to_either_side_and_either_naming() {
+        assert_eq!(ridge_scale("mouthRollUpper"), 6.0);
+        assert_eq!(ridge_scale("mouthStretchLeft"), 0.33);
+        assert_eq!(ridge_scale("mouthStretch_R"), 0.33);
+        assert_eq!(ridge_scale("mouthFrown_L"), 3.0);
+        // directions, unlisted shapes and near-misses keep the observability ridge
+        assert_eq!(ridge_scale("mouthLeft"), 1.0);
+        assert_eq!(ridge_scale("jawOpen"), 1.0);
+        assert_eq!(ridge_scale("mouthRollUpperX"), 1.0);
+        for (name, m) in ARKIT_RIDGE_SCALE {
+            assert!(m > 0.0 && m.is_finite(), "{name}");
+        }
+    }
 
     #[test]
     fn sides_are_split_but_directions_are_not() {
