@@ -176,6 +176,58 @@ pub const DEFAULT_SHAPES: [&str; 52] = [
 ];
 
 /// Displacement (cm) of each of the 68 landmarks for the named shape.
+/// `mouthLeft` at the 68 landmarks (cm), from ICT-FaceKit's shape (MIT); `mouthRight` is its
+/// mirror image ([`mirror_ibug`]).
+const MOUTH_LEFT_CM: [(usize, [f64; 3]); 29] = [
+    (4, [0.36, 0.0, 0.43]),
+    (5, [0.39, -0.04, 0.52]),
+    (6, [0.35, 0.02, 0.43]),
+    (7, [0.34, 0.05, 0.25]),
+    (8, [0.24, 0.02, 0.09]),
+    (9, [0.25, 0.07, -0.06]),
+    (10, [0.17, 0.12, -0.14]),
+    (11, [0.08, 0.16, -0.04]),
+    (12, [0.12, 0.14, 0.08]),
+    (48, [1.55, 0.04, 0.93]),
+    (49, [1.67, -0.07, 0.43]),
+    (50, [1.68, 0.03, -0.07]),
+    (51, [1.61, 0.08, -0.33]),
+    (52, [1.36, 0.13, -0.48]),
+    (53, [0.96, 0.26, -0.57]),
+    (54, [0.61, 0.57, -0.41]),
+    (55, [1.0, 0.32, -0.49]),
+    (56, [1.27, 0.18, -0.52]),
+    (57, [1.58, 0.07, -0.34]),
+    (58, [1.72, 0.01, 0.03]),
+    (59, [1.77, -0.01, 0.47]),
+    (60, [1.51, 0.08, 0.8]),
+    (61, [1.53, 0.02, 0.11]),
+    (62, [1.41, 0.03, -0.28]),
+    (63, [1.09, 0.16, -0.45]),
+    (64, [0.64, 0.5, -0.31]),
+    (65, [1.11, 0.21, -0.36]),
+    (66, [1.36, 0.1, -0.2]),
+    (67, [1.56, 0.05, 0.2]),
+];
+
+/// The iBUG 68 index of a point's left-right mirror image.
+fn mirror_ibug(i: usize) -> usize {
+    match i {
+        0..=16 => 16 - i,
+        17..=26 => 43 - i,
+        27..=30 => i,
+        31..=35 => 66 - i,
+        36..=39 => 81 - i,
+        40 | 41 => 87 - i,
+        42..=45 => 81 - i,
+        46 | 47 => 87 - i,
+        48..=54 => 102 - i,
+        55..=59 => 114 - i,
+        60..=64 => 124 - i,
+        _ => 132 - i, // 65..=67
+    }
+}
+
 fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
     let mut d = [Vector3::zeros(); 68];
     let p = |i: usize| Vector3::new(MEAN_FACE_68_CM[i][0], MEAN_FACE_68_CM[i][1], MEAN_FACE_68_CM[i][2]);
@@ -374,9 +426,17 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[65, 66, 67], Vector3::new(0.0, -0.35, 0.35));
         }
         "mouthLeft" | "mouthRight" => {
+            // The mouth slides sideways round the face, as in ICT-FaceKit's mouthLeft (cm):
+            // the middle ~1.5 cm, the trailing corner as far and forward, the leading corner
+            // only 0.6 cm and up into the cheek, so the mouth narrows by ~1 cm. The uniform
+            // 0.6 cm slide this replaces saturated at 1 on a sideways mouth and left the
+            // narrowing to mouthPucker (liveportrait_d9 frames 144-188: pucker 0.7-0.99
+            // where MediaPipe gives 0.02-0.1; docs/expressions.md, "The mouth's sideways slide").
             let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            set(&(48..68).collect::<Vec<_>>(), Vector3::new(0.6 * s, 0.0, 0.0));
-            set(&[6, 7, 8, 9, 10], Vector3::new(0.1 * s, 0.0, 0.0));
+            for &(i, [x, y, z]) in &MOUTH_LEFT_CM {
+                let i = if s > 0.0 { i } else { mirror_ibug(i) };
+                set(&[i], Vector3::new(x * s, y, z));
+            }
         }
         "mouthDimpleLeft" | "mouthDimpleRight" => {
             let (s, corner, inner) = if name.ends_with("Left") {
