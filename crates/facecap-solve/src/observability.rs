@@ -73,8 +73,12 @@ pub const BASE_RIDGE: f64 = 15.0;
 /// MediaPipe's stayed under 0.02, while `mouthStretch` reached 0.6x. These multipliers bring
 /// each one's range to 1.0-1.2x the reference's (std over the clip); mean r 0.792 -> 0.798
 /// (built-in rig), 0.801 -> 0.806 (ICT), synthetic truth RMSE 0.081 -> 0.078
-/// (docs/expressions.md, "Prior strength per lip shape").
-pub const ARKIT_RIDGE_SCALE: [(&str, f64); 6] = [
+/// (docs/expressions.md, "Prior strength per lip shape"). `mouthPucker` x0.3 undoes the
+/// rise of its ridge (31 -> 114) when the built-in `mouthLeft` / `mouthRight` came to narrow
+/// the mouth as real ones do (docs/expressions.md, "The mouth's sideways slide"): its spread
+/// 0.77x -> 0.93x of the reference's, mean r unchanged (0.8019 -> 0.8015, 0.8091 -> 0.8093).
+pub const ARKIT_RIDGE_SCALE: [(&str, f64); 7] = [
+    ("mouthPucker", 0.3),
     ("mouthRollUpper", 6.0),
     ("mouthLowerDown", 4.0),
     ("mouthFunnel", 3.0),
