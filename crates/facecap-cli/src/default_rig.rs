@@ -210,6 +210,26 @@ const MOUTH_LEFT_CM: [(usize, [f64; 3]); 29] = [
     (67, [1.56, 0.05, 0.2]),
 ];
 
+/// `mouthUpperUpLeft` at the 68 landmarks (cm), from ICT-FaceKit's `mouthUpperUp_L` (MIT);
+/// the right is its mirror image.
+const MOUTH_UPPER_UP_LEFT_CM: [(usize, [f64; 3]); 15] = [
+    (11, [-0.01, 0.07, 0.09]),
+    (12, [-0.03, 0.07, 0.09]),
+    (32, [-0.04, 0.12, -0.05]),
+    (33, [0.0, 0.13, -0.06]),
+    (34, [0.08, 0.23, -0.1]),
+    (35, [0.17, 0.51, -0.14]),
+    (49, [-0.01, 0.05, 0.0]),
+    (50, [-0.04, 0.26, -0.04]),
+    (51, [0.0, 0.4, -0.06]),
+    (52, [0.1, 0.57, -0.08]),
+    (53, [0.21, 0.81, -0.04]),
+    (55, [0.01, 0.09, 0.02]),
+    (61, [-0.04, 0.18, -0.01]),
+    (62, [0.0, 0.38, -0.03]),
+    (63, [0.14, 0.59, -0.02]),
+];
+
 /// The iBUG 68 index of a point's left-right mirror image.
 fn mirror_ibug(i: usize) -> usize {
     match i {
@@ -483,14 +503,13 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[57, 66], Vector3::new(0.0, -0.25, 0.0));
         }
         "mouthUpperUpLeft" | "mouthUpperUpRight" => {
-            let (side, inner) = if name.ends_with("Left") {
-                ([52, 53], 63)
-            } else {
-                ([50, 49], 61)
-            };
-            set(&side, Vector3::new(0.0, 0.45, 0.05));
-            set(&[inner], Vector3::new(0.0, 0.4, 0.0));
-            set(&[51, 62], Vector3::new(0.0, 0.2, 0.0));
+            // ICT-FaceKit's mouthUpperUp_L (cm): the upper lip rises most beside the middle,
+            // the corner and the nostril's wing rise with it
+            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
+            for &(i, [x, y, z]) in &MOUTH_UPPER_UP_LEFT_CM {
+                let i = if s > 0.0 { i } else { mirror_ibug(i) };
+                set(&[i], Vector3::new(x * s, y, z));
+            }
         }
         "cheekPuff" => {
             set(&[48, 60], Vector3::new(-0.1, 0.0, 0.1));
