@@ -230,6 +230,30 @@ const MOUTH_UPPER_UP_LEFT_CM: [(usize, [f64; 3]); 15] = [
     (63, [0.14, 0.59, -0.02]),
 ];
 
+/// `mouthPucker` at the lips' 20 landmarks (cm), from ICT-FaceKit's shape (MIT).
+const MOUTH_PUCKER_CM: [(usize, [f64; 3]); 20] = [
+    (48, [0.46, 0.22, 0.98]),
+    (49, [0.21, 0.25, 0.91]),
+    (50, [0.07, 0.36, 0.79]),
+    (51, [0.0, 0.37, 0.8]),
+    (52, [-0.07, 0.36, 0.79]),
+    (53, [-0.21, 0.25, 0.91]),
+    (54, [-0.46, 0.22, 0.98]),
+    (55, [-0.31, 0.07, 0.91]),
+    (56, [-0.18, -0.1, 0.73]),
+    (57, [0.0, -0.19, 0.63]),
+    (58, [0.18, -0.1, 0.73]),
+    (59, [0.31, 0.07, 0.91]),
+    (60, [0.52, 0.21, 1.09]),
+    (61, [0.25, -0.09, 0.85]),
+    (62, [0.0, -0.03, 0.69]),
+    (63, [-0.25, -0.09, 0.85]),
+    (64, [-0.52, 0.21, 1.09]),
+    (65, [-0.25, 0.08, 1.05]),
+    (66, [0.0, 0.02, 0.9]),
+    (67, [0.25, 0.08, 1.05]),
+];
+
 /// The iBUG 68 index of a point's left-right mirror image.
 fn mirror_ibug(i: usize) -> usize {
     match i {
@@ -299,11 +323,9 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&near, Vector3::new(0.0, -0.25, 0.0));
         }
         "mouthPucker" => {
-            set(&[48, 60], Vector3::new(0.7, 0.0, 0.3));
-            set(&[54, 64], Vector3::new(-0.7, 0.0, 0.3));
-            set(&[49, 59, 61, 67], Vector3::new(0.35, 0.0, 0.45));
-            set(&[53, 55, 63, 65], Vector3::new(-0.35, 0.0, 0.45));
-            set(&[50, 51, 52, 56, 57, 58, 62, 66], Vector3::new(0.0, 0.0, 0.5));
+            for &(i, v) in &MOUTH_PUCKER_CM {
+                set(&[i], Vector3::new(v[0], v[1], v[2]));
+            }
         }
         "mouthStretchLeft" | "mouthStretchRight" => {
             let (s, corner, inner, near) = if name.ends_with("Left") {
