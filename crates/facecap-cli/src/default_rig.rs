@@ -27,6 +27,7 @@ use facecap_geom::harmonic::Harmonic;
 use facecap_geom::tps::Tps3;
 use facecap_mesh::canonical::CanonicalMesh;
 use facecap_mesh::ibug68::IBUG68_FROM_MESH;
+use facecap_muscle::synthetic::mirror_landmark;
 use nalgebra::{Point3, Vector3};
 
 /// 3D mean face, iBUG-68 order, cm (see module docs).
@@ -175,9 +176,8 @@ pub const DEFAULT_SHAPES: [&str; 52] = [
     "tongueOut",
 ];
 
-/// Displacement (cm) of each of the 68 landmarks for the named shape.
 /// `mouthLeft` at the 68 landmarks (cm), from ICT-FaceKit's shape (MIT); `mouthRight` is its
-/// mirror image ([`mirror_ibug`]).
+/// mirror image ([`sided`]).
 const MOUTH_LEFT_CM: [(usize, [f64; 3]); 29] = [
     (4, [0.36, 0.0, 0.43]),
     (5, [0.39, -0.04, 0.52]),
@@ -211,7 +211,7 @@ const MOUTH_LEFT_CM: [(usize, [f64; 3]); 29] = [
 ];
 
 /// `mouthUpperUpLeft` at the 68 landmarks (cm), from ICT-FaceKit's `mouthUpperUp_L` (MIT);
-/// the right is its mirror image.
+/// the right is its mirror image ([`sided`]).
 const MOUTH_UPPER_UP_LEFT_CM: [(usize, [f64; 3]); 15] = [
     (11, [-0.01, 0.07, 0.09]),
     (12, [-0.03, 0.07, 0.09]),
@@ -254,24 +254,16 @@ const MOUTH_PUCKER_CM: [(usize, [f64; 3]); 20] = [
     (67, [0.25, 0.08, 1.05]),
 ];
 
-/// The iBUG 68 index of a point's left-right mirror image.
-fn mirror_ibug(i: usize) -> usize {
-    match i {
-        0..=16 => 16 - i,
-        17..=26 => 43 - i,
-        27..=30 => i,
-        31..=35 => 66 - i,
-        36..=39 => 81 - i,
-        40 | 41 => 87 - i,
-        42..=45 => 81 - i,
-        46 | 47 => 87 - i,
-        48..=54 => 102 - i,
-        55..=59 => 114 - i,
-        60..=64 => 124 - i,
-        _ => 132 - i, // 65..=67
-    }
+/// The displacements of `table` (listed for the left side) for side `s`: 1 as listed, -1
+/// their mirror image (iBUG points mirrored, x negated).
+fn sided(table: &[(usize, [f64; 3])], s: f64) -> impl Iterator<Item = (usize, Vector3<f64>)> + '_ {
+    table.iter().map(move |&(i, [x, y, z])| {
+        let i = if s > 0.0 { i } else { mirror_landmark(i) };
+        (i, Vector3::new(x * s, y, z))
+    })
 }
 
+/// Displacement (cm) of each of the 68 landmarks for the named shape.
 fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
     let mut d = [Vector3::zeros(); 68];
     let p = |i: usize| Vector3::new(MEAN_FACE_68_CM[i][0], MEAN_FACE_68_CM[i][1], MEAN_FACE_68_CM[i][2]);
@@ -323,8 +315,8 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&near, Vector3::new(0.0, -0.25, 0.0));
         }
         "mouthPucker" => {
-            for &(i, v) in &MOUTH_PUCKER_CM {
-                set(&[i], Vector3::new(v[0], v[1], v[2]));
+            for (i, v) in sided(&MOUTH_PUCKER_CM, 1.0) {
+                set(&[i], v);
             }
         }
         "mouthStretchLeft" | "mouthStretchRight" => {
@@ -475,9 +467,8 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             // narrowing to mouthPucker (liveportrait_d9 frames 144-188: pucker 0.7-0.99
             // where MediaPipe gives 0.02-0.1; docs/expressions.md, "The mouth's sideways slide").
             let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for &(i, [x, y, z]) in &MOUTH_LEFT_CM {
-                let i = if s > 0.0 { i } else { mirror_ibug(i) };
-                set(&[i], Vector3::new(x * s, y, z));
+            for (i, v) in sided(&MOUTH_LEFT_CM, s) {
+                set(&[i], v);
             }
         }
         "mouthDimpleLeft" | "mouthDimpleRight" => {
@@ -525,12 +516,12 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[57, 66], Vector3::new(0.0, -0.25, 0.0));
         }
         "mouthUpperUpLeft" | "mouthUpperUpRight" => {
-            // ICT-FaceKit's mouthUpperUp_L (cm): the upper lip rises most beside the middle,
-            // the corner and the nostril's wing rise with it
+            // ICT-FaceKit's mouthUpperUp_L (cm): the upper lip rises most beside the middle
+            // and the nostril's wing with it; ICT's mouth corner (0.44 cm up) is left out,
+            // it took part of every smile (docs/expressions.md, "The upper lip's raise")
             let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for &(i, [x, y, z]) in &MOUTH_UPPER_UP_LEFT_CM {
-                let i = if s > 0.0 { i } else { mirror_ibug(i) };
-                set(&[i], Vector3::new(x * s, y, z));
+            for (i, v) in sided(&MOUTH_UPPER_UP_LEFT_CM, s) {
+                set(&[i], v);
             }
         }
         "cheekPuff" => {
