@@ -254,6 +254,146 @@ const MOUTH_PUCKER_CM: [(usize, [f64; 3]); 20] = [
     (67, [0.25, 0.08, 1.05]),
 ];
 
+/// `mouthPressLeft` at the 68 landmarks (cm), from ICT-FaceKit's `mouthPress_L` (MIT): the lower
+/// lip and chin rise and come forward on that side; the right is its mirror image ([`sided`]).
+const MOUTH_PRESS_LEFT_CM: [(usize, [f64; 3]); 27] = [
+    (7, [0.0, 0.04, 0.02]),
+    (8, [0.0, 0.22, 0.13]),
+    (9, [-0.02, 0.38, 0.17]),
+    (10, [-0.02, 0.21, 0.2]),
+    (11, [-0.08, 0.13, 0.12]),
+    (12, [-0.07, 0.04, 0.04]),
+    (28, [0.0, -0.03, 0.01]),
+    (29, [0.0, -0.04, -0.01]),
+    (30, [0.0, -0.04, -0.04]),
+    (33, [0.0, -0.02, 0.03]),
+    (34, [0.01, -0.02, 0.03]),
+    (35, [0.02, -0.01, 0.09]),
+    (50, [0.02, -0.04, -0.02]),
+    (51, [0.0, -0.07, -0.04]),
+    (52, [-0.05, -0.09, -0.04]),
+    (53, [-0.09, -0.01, -0.01]),
+    (54, [-0.01, 0.13, 0.05]),
+    (55, [0.0, 0.28, 0.13]),
+    (56, [-0.01, 0.24, 0.11]),
+    (57, [0.0, 0.15, 0.09]),
+    (58, [0.0, 0.08, 0.04]),
+    (62, [0.0, -0.03, -0.04]),
+    (63, [-0.03, 0.02, -0.04]),
+    (64, [-0.03, 0.16, 0.06]),
+    (65, [0.0, 0.17, 0.07]),
+    (66, [0.0, 0.09, 0.07]),
+    (67, [0.0, 0.05, 0.02]),
+];
+/// `mouthFrownLeft` at the 68 landmarks (cm), from ICT-FaceKit's `mouthFrown_L` (MIT): the corner
+/// down, out and back, the chin forward; the right is its mirror image ([`sided`]).
+const MOUTH_FROWN_LEFT_CM: [(usize, [f64; 3]); 24] = [
+    (8, [0.0, 0.05, 0.07]),
+    (9, [-0.02, 0.05, 0.13]),
+    (10, [0.0, -0.06, 0.14]),
+    (11, [-0.01, -0.06, 0.08]),
+    (12, [-0.02, -0.05, 0.05]),
+    (13, [-0.04, -0.04, 0.03]),
+    (14, [-0.02, -0.05, 0.01]),
+    (15, [-0.01, -0.03, 0.0]),
+    (32, [0.0, -0.03, -0.01]),
+    (33, [0.0, -0.03, -0.02]),
+    (34, [0.0, -0.06, -0.02]),
+    (35, [0.01, -0.11, -0.03]),
+    (50, [-0.01, -0.04, -0.02]),
+    (51, [0.0, -0.05, -0.03]),
+    (52, [0.02, -0.09, -0.05]),
+    (53, [0.08, -0.2, -0.11]),
+    (54, [0.19, -0.46, -0.18]),
+    (55, [0.1, -0.14, 0.02]),
+    (56, [0.03, -0.03, 0.03]),
+    (61, [-0.01, -0.03, -0.02]),
+    (62, [0.0, -0.04, -0.04]),
+    (63, [0.04, -0.09, -0.06]),
+    (64, [0.18, -0.39, -0.13]),
+    (65, [0.06, -0.08, 0.01]),
+];
+/// `mouthShrugUpper` at the 68 landmarks (cm), from ICT-FaceKit's shape (MIT).
+const MOUTH_SHRUG_UPPER_CM: [(usize, [f64; 3]); 14] = [
+    (31, [0.0, 0.12, 0.0]),
+    (32, [0.0, 0.23, 0.0]),
+    (33, [0.0, 0.26, 0.01]),
+    (34, [0.0, 0.23, 0.0]),
+    (35, [0.0, 0.13, 0.0]),
+    (49, [-0.02, 0.31, 0.02]),
+    (50, [-0.01, 0.52, 0.02]),
+    (51, [0.0, 0.57, 0.03]),
+    (52, [0.01, 0.52, 0.02]),
+    (53, [0.02, 0.32, 0.02]),
+    (60, [-0.01, 0.05, 0.0]),
+    (61, [-0.01, 0.42, 0.09]),
+    (62, [0.0, 0.53, 0.1]),
+    (63, [0.01, 0.43, 0.09]),
+];
+/// `browOuterUpLeft` at the 68 landmarks (cm), from ICT-FaceKit's `browOuterUp_L` (MIT); the
+/// right is its mirror image ([`sided`]).
+const BROW_OUTER_UP_LEFT_CM: [(usize, [f64; 3]); 13] = [
+    (14, [0.0, 0.05, 0.0]),
+    (15, [0.0, 0.07, 0.02]),
+    (16, [0.0, 0.08, 0.03]),
+    (21, [-0.01, 0.05, 0.0]),
+    (22, [0.05, 0.21, -0.02]),
+    (23, [0.15, 0.55, -0.09]),
+    (24, [0.23, 0.75, -0.2]),
+    (25, [0.19, 0.75, -0.3]),
+    (26, [0.11, 0.58, -0.24]),
+    (27, [0.0, 0.03, 0.0]),
+    (43, [0.0, 0.03, -0.01]),
+    (44, [0.0, 0.07, -0.02]),
+    (45, [0.0, 0.05, 0.0]),
+];
+/// `jawLeft` at the 68 landmarks (cm), from ICT-FaceKit's shape (MIT): the chin and the lower
+/// lip ~0.85 cm to the subject's left, the jaw's contour less towards the ears; `jawRight` is
+/// its mirror image ([`sided`]).
+const JAW_LEFT_CM: [(usize, [f64; 3]); 41] = [
+    (2, [0.06, -0.03, 0.01]),
+    (3, [0.19, -0.03, 0.01]),
+    (4, [0.35, -0.01, 0.01]),
+    (5, [0.52, 0.03, 0.03]),
+    (6, [0.69, 0.0, 0.04]),
+    (7, [0.85, 0.01, 0.03]),
+    (8, [0.86, 0.01, 0.01]),
+    (9, [0.86, 0.02, -0.01]),
+    (10, [0.73, 0.02, -0.03]),
+    (11, [0.56, 0.05, -0.04]),
+    (12, [0.38, 0.04, -0.07]),
+    (13, [0.32, 0.01, -0.04]),
+    (14, [0.24, 0.01, 0.0]),
+    (15, [0.04, 0.0, 0.0]),
+    (16, [0.03, 0.0, 0.01]),
+    (30, [0.04, 0.0, 0.0]),
+    (31, [0.09, 0.0, 0.0]),
+    (32, [0.08, 0.0, 0.0]),
+    (33, [0.09, 0.0, 0.0]),
+    (34, [0.09, 0.0, 0.0]),
+    (35, [0.09, -0.01, 0.0]),
+    (48, [0.45, 0.0, 0.08]),
+    (49, [0.2, 0.0, 0.02]),
+    (50, [0.17, 0.0, 0.01]),
+    (51, [0.17, 0.0, 0.0]),
+    (52, [0.18, 0.0, 0.0]),
+    (53, [0.24, 0.01, 0.02]),
+    (54, [0.5, 0.04, 0.0]),
+    (55, [0.83, 0.04, -0.01]),
+    (56, [0.84, 0.04, 0.01]),
+    (57, [0.79, 0.03, 0.09]),
+    (58, [0.73, 0.04, 0.17]),
+    (59, [0.7, 0.03, 0.18]),
+    (60, [0.48, 0.01, 0.09]),
+    (61, [0.18, 0.0, 0.01]),
+    (62, [0.16, 0.0, 0.0]),
+    (63, [0.2, 0.01, 0.0]),
+    (64, [0.55, 0.04, -0.01]),
+    (65, [0.81, 0.03, 0.01]),
+    (66, [0.79, 0.03, 0.08]),
+    (67, [0.72, 0.03, 0.17]),
+];
+
 /// The displacements of `table` (listed for the left side) for side `s`: 1 as listed, -1
 /// their mirror image (iBUG points mirrored, x negated).
 fn sided(table: &[(usize, [f64; 3])], s: f64) -> impl Iterator<Item = (usize, Vector3<f64>)> + '_ {
@@ -306,13 +446,10 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[7, 8, 9], Vector3::new(0.0, 0.16, 0.0));
         }
         "mouthFrownLeft" | "mouthFrownRight" => {
-            let (corner, inner, near) = if name.ends_with("Left") {
-                (54, 64, [53, 55])
-            } else {
-                (48, 60, [49, 59])
-            };
-            set(&[corner, inner], Vector3::new(0.0, -0.5, 0.0));
-            set(&near, Vector3::new(0.0, -0.25, 0.0));
+            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
+            for (i, v) in sided(&MOUTH_FROWN_LEFT_CM, s) {
+                set(&[i], v);
+            }
         }
         "mouthPucker" => {
             for (i, v) in sided(&MOUTH_PUCKER_CM, 1.0) {
@@ -345,13 +482,9 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             }
         }
         "browOuterUpLeft" | "browOuterUpRight" => {
-            let ids = if name.ends_with("Left") {
-                [26, 25, 24]
-            } else {
-                [17, 18, 19]
-            };
-            for (k, &i) in ids.iter().enumerate() {
-                set(&[i], Vector3::new(0.0, 0.6 - 0.2 * k as f64, 0.0));
+            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
+            for (i, v) in sided(&BROW_OUTER_UP_LEFT_CM, s) {
+                set(&[i], v);
             }
         }
         "eyeBlinkLeft" | "eyeBlinkRight" => {
@@ -436,12 +569,9 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
         }
         "jawLeft" | "jawRight" => {
             let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for i in 2..=14usize {
-                let w = (1.0 - (i as f64 - 8.0).abs() / 7.0).max(0.0);
-                set(&[i], Vector3::new(0.7 * s * w, 0.0, 0.0));
+            for (i, v) in sided(&JAW_LEFT_CM, s) {
+                set(&[i], v);
             }
-            set(&[55, 56, 57, 58, 59, 65, 66, 67], Vector3::new(0.55 * s, 0.0, 0.0));
-            set(&[48, 54, 60, 64], Vector3::new(0.25 * s, 0.0, 0.0));
         }
         "mouthClose" => {
             // Lips closed over an open jaw: the lower lip and corners go back up by the
@@ -490,20 +620,15 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[7, 8, 9], Vector3::new(0.0, 0.25, 0.1));
         }
         "mouthShrugUpper" => {
-            set(&[49, 50, 51, 52, 53], Vector3::new(0.0, 0.2, 0.1));
-            set(&[61, 62, 63], Vector3::new(0.0, 0.15, 0.05));
+            for (i, v) in sided(&MOUTH_SHRUG_UPPER_CM, 1.0) {
+                set(&[i], v);
+            }
         }
         "mouthPressLeft" | "mouthPressRight" => {
-            // The lips pressed together on one side: the lower lip rises, the upper
-            // lip's inner edge comes down, both flatten.
-            let (low, inner_low, inner_up) = if name.ends_with("Left") {
-                ([55, 56], [64, 65], [63])
-            } else {
-                ([59, 58], [60, 67], [61])
-            };
-            set(&low, Vector3::new(0.0, 0.3, -0.1));
-            set(&inner_low, Vector3::new(0.0, 0.15, -0.1));
-            set(&inner_up, Vector3::new(0.0, -0.1, -0.1));
+            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
+            for (i, v) in sided(&MOUTH_PRESS_LEFT_CM, s) {
+                set(&[i], v);
+            }
         }
         "mouthLowerDownLeft" | "mouthLowerDownRight" => {
             let (side, inner) = if name.ends_with("Left") {

@@ -744,6 +744,40 @@ impl GazeRest {
     }
 }
 
+/// Where the iris centre rests across the eye when the eye looks straight ahead in the
+/// head: `u` = 0.46 eye widths from the outer corner, a little outside the corners' midpoint.
+/// Measured with the mesh front end on the five shared clips, whose subjects mostly face and
+/// look at the camera: the median `u` of seven of the ten eyes lies 0.44-0.50 (the midpoint
+/// is 0.5; liveportrait_d18's right eye 0.40, liveportrait_d6's eyes 0.55 and 0.61). The
+/// clip median alone takes a subject who looks inwards all along (d6 converges: MediaPipe's
+/// `eyeLookInRight` is 0.68 on average there) for a straight gaze (docs/gaze.md, "The
+/// straight gaze").
+pub const STRAIGHT_AHEAD_U: f64 = 0.46;
+
+/// Share of the clip's own median `u` in the resting `u` of [`GazeRest::towards_straight_ahead`];
+/// the rest is [`STRAIGHT_AHEAD_U`]. Any share 0-0.5 gave the same agreement with MediaPipe's
+/// `eyeLookIn` / `eyeLookOut` on the shared clips (docs/gaze.md, "The straight gaze"); the
+/// clip's own half keeps a subject's own eye shape and corner placement in the rest.
+pub const REST_MEDIAN_SHARE: f64 = 0.5;
+
+impl GazeRest {
+    /// [`GazeRest::median_of`] with each eye's resting `u` moved towards the straight gaze:
+    /// `REST_MEDIAN_SHARE · median + (1 - REST_MEDIAN_SHARE) · STRAIGHT_AHEAD_U`. `v` stays the
+    /// median (the vertical rest depends on the lids' opening; a fixed `v` did not help).
+    /// `None` as for [`GazeRest::median_of`].
+    pub fn towards_straight_ahead(frames: &[IrisFrame]) -> Option<GazeRest> {
+        let m = GazeRest::median_of(frames)?;
+        let pull = |r: EyeRest| EyeRest {
+            u: REST_MEDIAN_SHARE * r.u + (1.0 - REST_MEDIAN_SHARE) * STRAIGHT_AHEAD_U,
+            v: r.v,
+        };
+        Some(GazeRest {
+            right: pull(m.right),
+            left: pull(m.left),
+        })
+    }
+}
+
 /// The median of `x` (the mean of the middle two for an even count; sorts `x`), as the
 /// resting gaze takes it; `None` when `x` is empty.
 pub fn median(x: &mut [f64]) -> Option<f64> {

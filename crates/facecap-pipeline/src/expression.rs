@@ -607,7 +607,7 @@ impl Gaze {
             }
             let seen = self.seen.len();
             if seen >= GAZE_REST_EVERY && (seen % GAZE_REST_EVERY == 0 || self.rest.is_none()) {
-                self.rest = GazeRest::median_of(&self.seen);
+                self.rest = GazeRest::towards_straight_ahead(&self.seen);
                 self.rest_head = median_head(&self.seen_head);
             }
         }
@@ -1175,7 +1175,7 @@ impl ExpressionSink<'_> {
         }
         self.result.neutral_report = report;
         let irises: Vec<IrisFrame> = faces.iter().filter_map(|t| t.iris).collect();
-        self.gaze.rest = GazeRest::median_of(&irises);
+        self.gaze.rest = GazeRest::towards_straight_ahead(&irises);
         self.gaze.rest_from_clip = self.gaze.rest.is_some();
         let mut sv = Solving::new(solver);
         // every frame's pose first: the resting head is the clip's median, as the gaze's
