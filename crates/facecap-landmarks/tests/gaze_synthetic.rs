@@ -8,7 +8,7 @@ mod gaze_common;
 use facecap_core::landmarks::Landmarks68;
 use facecap_landmarks::gaze::{
     gaze_weights, gaze_weights_in_head, EyeEstimate, EyeRest, EyeStatus, GazeGains, GazeRest, HeadTurn, IrisEstimator,
-    IrisFrame, IrisParams, GAZE_WEIGHT_NAMES, HEAD_TURN_EYE_WIDTHS,
+    IrisFrame, IrisParams, GAZE_WEIGHT_NAMES, HEAD_TURN_EYE_WIDTHS, REST_MEDIAN_SHARE, STRAIGHT_AHEAD_U,
 };
 use gaze_common::{face, render};
 use image::GrayImage;
@@ -385,6 +385,24 @@ fn gaze_weights_follow_the_arkit_sides() {
     assert_eq!((r.right.u, r.right.v), (0.5, 0.1));
     assert!((r.left.u - 0.4).abs() < 1e-12 && (r.left.v - 0.2).abs() < 1e-12);
     assert!(GazeRest::median_of(&[IrisFrame::default()]).is_none());
+    // the capture's rest: u halfway between the clip's median and the straight gaze, v the
+    // median; a subject who looks inwards all along then reads eyeLookIn
+    let t = GazeRest::towards_straight_ahead(&frames).unwrap();
+    let half = |m: f64| REST_MEDIAN_SHARE * m + (1.0 - REST_MEDIAN_SHARE) * STRAIGHT_AHEAD_U;
+    assert!((t.right.u - half(0.5)).abs() < 1e-12 && (t.left.u - half(0.4)).abs() < 1e-12);
+    assert_eq!((t.right.v, t.left.v), (r.right.v, r.left.v));
+    let inwards = [IrisFrame {
+        right: eye(0.62, 0.0),
+        left: eye(0.62, 0.0),
+    }];
+    let t = GazeRest::towards_straight_ahead(&inwards).unwrap();
+    let w = gaze_weights(&inwards[0], &t, &gains);
+    assert!(w[idx("eyeLookInLeft")] > 0.1 && w[idx("eyeLookInRight")] > 0.1);
+    assert_eq!(
+        gaze_weights(&inwards[0], &GazeRest::median_of(&inwards).unwrap(), &gains),
+        [0.0; 8]
+    );
+    assert!(GazeRest::towards_straight_ahead(&[IrisFrame::default()]).is_none());
 }
 
 #[test]
