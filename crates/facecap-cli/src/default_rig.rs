@@ -394,9 +394,11 @@ const JAW_LEFT_CM: [(usize, [f64; 3]); 41] = [
     (67, [0.72, 0.03, 0.17]),
 ];
 
-/// The displacements of `table` (listed for the left side) for side `s`: 1 as listed, -1
-/// their mirror image (iBUG points mirrored, x negated).
-fn sided(table: &[(usize, [f64; 3])], s: f64) -> impl Iterator<Item = (usize, Vector3<f64>)> + '_ {
+/// The displacements of `table` (listed for the left side, or for both sides of a symmetric
+/// shape) for the shape `name`: as listed, or their mirror image (iBUG points mirrored, x
+/// negated) when `name` ends in `Right`.
+fn sided<'a>(table: &'a [(usize, [f64; 3])], name: &str) -> impl Iterator<Item = (usize, Vector3<f64>)> + 'a {
+    let s = if name.ends_with("Right") { -1.0 } else { 1.0 };
     table.iter().map(move |&(i, [x, y, z])| {
         let i = if s > 0.0 { i } else { mirror_landmark(i) };
         (i, Vector3::new(x * s, y, z))
@@ -446,13 +448,12 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[7, 8, 9], Vector3::new(0.0, 0.16, 0.0));
         }
         "mouthFrownLeft" | "mouthFrownRight" => {
-            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for (i, v) in sided(&MOUTH_FROWN_LEFT_CM, s) {
+            for (i, v) in sided(&MOUTH_FROWN_LEFT_CM, name) {
                 set(&[i], v);
             }
         }
         "mouthPucker" => {
-            for (i, v) in sided(&MOUTH_PUCKER_CM, 1.0) {
+            for (i, v) in sided(&MOUTH_PUCKER_CM, name) {
                 set(&[i], v);
             }
         }
@@ -482,8 +483,7 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             }
         }
         "browOuterUpLeft" | "browOuterUpRight" => {
-            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for (i, v) in sided(&BROW_OUTER_UP_LEFT_CM, s) {
+            for (i, v) in sided(&BROW_OUTER_UP_LEFT_CM, name) {
                 set(&[i], v);
             }
         }
@@ -568,8 +568,7 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[55, 56, 57, 58, 59, 65, 66, 67], Vector3::new(0.0, 0.05, 0.5));
         }
         "jawLeft" | "jawRight" => {
-            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for (i, v) in sided(&JAW_LEFT_CM, s) {
+            for (i, v) in sided(&JAW_LEFT_CM, name) {
                 set(&[i], v);
             }
         }
@@ -596,8 +595,7 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             // 0.6 cm slide this replaces saturated at 1 on a sideways mouth and left the
             // narrowing to mouthPucker (liveportrait_d9 frames 144-188: pucker 0.7-0.99
             // where MediaPipe gives 0.02-0.1; docs/expressions.md, "The mouth's sideways slide").
-            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for (i, v) in sided(&MOUTH_LEFT_CM, s) {
+            for (i, v) in sided(&MOUTH_LEFT_CM, name) {
                 set(&[i], v);
             }
         }
@@ -620,13 +618,12 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             set(&[7, 8, 9], Vector3::new(0.0, 0.25, 0.1));
         }
         "mouthShrugUpper" => {
-            for (i, v) in sided(&MOUTH_SHRUG_UPPER_CM, 1.0) {
+            for (i, v) in sided(&MOUTH_SHRUG_UPPER_CM, name) {
                 set(&[i], v);
             }
         }
         "mouthPressLeft" | "mouthPressRight" => {
-            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for (i, v) in sided(&MOUTH_PRESS_LEFT_CM, s) {
+            for (i, v) in sided(&MOUTH_PRESS_LEFT_CM, name) {
                 set(&[i], v);
             }
         }
@@ -644,8 +641,7 @@ fn landmark_displacements(name: &str) -> [Vector3<f64>; 68] {
             // ICT-FaceKit's mouthUpperUp_L (cm): the upper lip rises most beside the middle
             // and the nostril's wing with it; ICT's mouth corner (0.44 cm up) is left out,
             // it took part of every smile (docs/expressions.md, "The upper lip's raise")
-            let s = if name.ends_with("Left") { 1.0 } else { -1.0 };
-            for (i, v) in sided(&MOUTH_UPPER_UP_LEFT_CM, s) {
+            for (i, v) in sided(&MOUTH_UPPER_UP_LEFT_CM, name) {
                 set(&[i], v);
             }
         }

@@ -329,9 +329,10 @@ struct LiveNeutralState {
 struct Gaze {
     /// The gaze shapes' indices in the rig, in `GAZE_WEIGHT_NAMES` order.
     idx: [Option<usize>; 8],
-    /// The subject's resting gaze (the clip median when every frame is known first).
+    /// The subject's resting gaze (`GazeRest::towards_straight_ahead` of the whole clip when
+    /// every frame is known first).
     rest: Option<GazeRest>,
-    /// Whether `rest` is the whole clip's median (else a running one).
+    /// Whether `rest` comes from the whole clip (else from the frames so far).
     rest_from_clip: bool,
     /// Iris estimates so far (the running rest when frames stream).
     seen: Vec<IrisFrame>,
