@@ -232,6 +232,9 @@ pub struct ExpressionSink<'a> {
     /// The rig's `eyeBlink*` shapes, their sides and the shapes a closing lid drives
     /// (see [`blink_weight`], [`closed_eye_weights`]).
     blink_idx: Vec<BlinkShape>,
+    /// The rig's `(mouthShrugLower, mouthRollLower)`, when it has both (see
+    /// [`rolled_lip_shrug`]).
+    shrug_idx: Option<(usize, usize)>,
     /// Neutral calibration on the fly (live input), see [`ExpressionSink::with_live_neutral`].
     live: Option<LiveNeutralState>,
     /// A second rig solved on the same frames, see [`ExpressionSink::with_companion`].
@@ -487,6 +490,31 @@ pub fn closed_eye_weights(blink: f64, look_down: f64, squint: f64) -> (f64, f64)
     (d.max(CLOSED_EYE_LOOK_DOWN * b), (s + CLOSED_EYE_SQUINT * b).min(1.0))
 }
 
+/// How much of `mouthRollLower` is added to `mouthShrugLower` (clamped to 1). Both raise
+/// the lower lip's outer edge towards the upper lip; the 68 points cannot tell them
+/// apart (the built-in rig's two shapes move them along directions with cosine 0.80 in
+/// the image plane; what separates them, the lip's depth and the chin's small rise, a
+/// camera in front hardly sees), so the solve's priors give the motion to `mouthRollLower`
+/// and `mouthShrugLower` kept 0.13-0.23x of MediaPipe's spread. The chin raiser (FACS AU17,
+/// the mentalis) is what pushes the lower lip up and in: ARKit's scores carry both, and
+/// MediaPipe's `mouthShrugLower` follows its own `mouthRollLower` with r 0.83 on
+/// liveportrait_d18 and 0.72 on liveportrait_d6. Measured (docs/expressions.md, "The
+/// chin raiser with the rolled lip"): `mouthShrugLower` r 0.545 -> 0.70 (built-in) and
+/// 0.44 -> 0.67 (ICT), flat for shares 0.5-1.
+pub const ROLLED_LIP_SHRUG: f64 = 0.5;
+
+/// `(mouthShrugLower, mouthRollLower)` of a rig's `names` (ARKit's or ICT's spelling),
+/// when it has both.
+fn rolled_lip_shapes(names: &[String]) -> Option<(usize, usize)> {
+    shape_index(names, "mouthShrugLower", None).zip(shape_index(names, "mouthRollLower", None))
+}
+
+/// `mouthShrugLower` given the solved `mouthShrugLower` and `mouthRollLower` (see
+/// [`ROLLED_LIP_SHRUG`]). Non-finite inputs count as 0; the result is in [0, 1].
+pub fn rolled_lip_shrug(shrug: f64, roll: f64) -> f64 {
+    (unit(shrug) + ROLLED_LIP_SHRUG * unit(roll)).min(1.0)
+}
+
 /// Zero-lag smoothing of a whole clip's solved weights (capture and `solve`, where every
 /// frame is solved before any is written; live input is not smoothed, it cannot wait for
 /// the next frames). Per shape, over each run of consecutive solved frames (a failed frame
@@ -710,6 +738,7 @@ impl<'a> ExpressionSink<'a> {
             prev_pose: None,
             gaze: Gaze::new(&setup.rig.names),
             blink_idx: BlinkShape::of_rig(&setup.rig.names),
+            shrug_idx: rolled_lip_shapes(&setup.rig.names),
             live: None,
             companion: None,
         })
@@ -922,15 +951,16 @@ impl<'a> ExpressionSink<'a> {
     fn solve_one(&mut self, sv: &mut Solving, face: &TrackedFace) -> Result<()> {
         let mut out = self.solve_frame(sv, face);
         if out.success {
-            self.eye_conventions(&mut out, face.iris.as_ref());
+            self.conventions(&mut out, face.iris.as_ref());
         }
         self.write_frame(out, face)
     }
 
-    /// The eyes' weights of a solved frame: the gaze shapes from the irises (the eyes' turn
-    /// in the head), then `eyeBlink*` after the gain and the iris damping, and what a
-    /// closing lid drives.
-    fn eye_conventions(&mut self, out: &mut SolvedFrame, iris: Option<&IrisFrame>) {
+    /// The weights of a solved frame that are not the solve's alone: the gaze shapes from
+    /// the irises (the eyes' turn in the head), then `eyeBlink*` after the gain and the
+    /// iris damping, what a closing lid drives, and the chin raiser with the rolled lower
+    /// lip ([`rolled_lip_shrug`]).
+    fn conventions(&mut self, out: &mut SolvedFrame, iris: Option<&IrisFrame>) {
         self.gaze.apply(iris, head_of(out.pose.as_ref()), &mut out.weights);
         for b in &self.blink_idx {
             let c = iris.map_or(0.0, |i| match b.side {
@@ -941,10 +971,13 @@ impl<'a> ExpressionSink<'a> {
             out.weights[b.blink] = blink_weight(out.weights[b.blink], c);
             b.drive_closed_eye(&mut out.weights);
         }
+        if let Some((shrug, roll)) = self.shrug_idx {
+            out.weights[shrug] = rolled_lip_shrug(out.weights[shrug], out.weights[roll]);
+        }
     }
 
-    /// Solves one frame (weights, pose; failures recorded), writing nothing. The eyes'
-    /// weights are the caller's ([`ExpressionSink::eye_conventions`]).
+    /// Solves one frame (weights, pose; failures recorded), writing nothing. The gaze, eye and lip
+    /// weights are the caller's ([`ExpressionSink::conventions`]).
     fn solve_frame(&mut self, sv: &mut Solving, face: &TrackedFace) -> SolvedFrame {
         let Solving {
             solver,
@@ -1189,7 +1222,7 @@ impl ExpressionSink<'_> {
         self.gaze.rest_head = median_head(&heads);
         for (out, face) in solved.iter_mut().zip(faces) {
             if out.success {
-                self.eye_conventions(out, face.iris.as_ref());
+                self.conventions(out, face.iris.as_ref());
             }
         }
         Ok((solved, sv))
@@ -1355,6 +1388,28 @@ mod tests {
         assert_eq!(blink_weight(f64::NAN, 0.2), 0.0);
         // more iris, less blink
         assert!(blink_weight(0.4, 0.9) < blink_weight(0.4, 0.7));
+    }
+
+    #[test]
+    fn a_rolled_lower_lip_raises_the_chin_raiser() {
+        // half the roll is added, clamped to a weight
+        assert!((rolled_lip_shrug(0.1, 0.6) - (0.1 + ROLLED_LIP_SHRUG * 0.6)).abs() < 1e-12);
+        assert_eq!(rolled_lip_shrug(0.2, 0.0), 0.2);
+        assert_eq!(rolled_lip_shrug(0.9, 1.0), 1.0);
+        assert_eq!(rolled_lip_shrug(-0.2, -0.5), 0.0);
+        assert_eq!(rolled_lip_shrug(f64::NAN, 0.4), ROLLED_LIP_SHRUG * 0.4);
+        assert_eq!(rolled_lip_shrug(0.3, f64::INFINITY), 0.3);
+        // found by name in ARKit's and ICT's spelling (neither has a side)
+        for names in [
+            ["jawOpen", "mouthRollLower", "mouthShrugLower"],
+            ["mouthShrugLower", "eyeBlink_L", "mouthRollLower"],
+        ] {
+            let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
+            let (shrug, roll) = rolled_lip_shapes(&names).unwrap();
+            assert!(names[shrug] == "mouthShrugLower" && names[roll] == "mouthRollLower");
+        }
+        let no_roll: Vec<String> = ["mouthShrugLower", "jawOpen"].iter().map(|s| s.to_string()).collect();
+        assert_eq!(rolled_lip_shapes(&no_roll), None);
     }
 
     #[test]
