@@ -818,6 +818,17 @@ fn capture_one(
     } else {
         None
     };
+    if let Some(n) = truth
+        .as_ref()
+        .and_then(|t| t["frames_other_face"].as_u64())
+        .filter(|&n| n > 0)
+    {
+        eprintln!(
+            "warning: {}: on {n} frames the tracked face is not the truth file's (landmarks more than {} inter-ocular distances away); those frames are left out of the errors against the truth",
+            video.display(),
+            crate::truth::OTHER_FACE_NME
+        );
+    }
     let reference_dir = args
         .reference
         .clone()

@@ -61,6 +61,16 @@ fn frames(c: &mut Criterion) {
     c.bench_function("frame/detector_640x480", |b| {
         b.iter(|| tracker.detector().detect_into(&vga_view, &mut dws, &mut dets).unwrap())
     });
+    // The small-face search (run only where the whole-image pass finds no face): 16
+    // windows of a third of the long side.
+    c.bench_function("frame/detector_small_faces_640x480", |b| {
+        b.iter(|| {
+            tracker
+                .detector()
+                .detect_small_into(&vga_view, &mut dws, &mut dets)
+                .unwrap()
+        })
+    });
     let view = RgbView::from_image(&face).unwrap();
     let mut state = tracker.state();
     tracker.track_into(&view, 0.0, &mut ws, &mut state, &mut mesh).unwrap();

@@ -38,11 +38,14 @@ pub mod smoothing;
 pub mod tflite;
 pub mod tracker;
 
-pub use detector::{Detection, DetectorParams, FaceDetector};
+pub use detector::{Detection, DetectorParams, FaceDetector, Window};
 pub use error::{Error, Result};
 pub use roi::{NormRect, RgbView};
 pub use smoothing::{LandmarkSmoother, SmoothingParams};
-pub use tracker::{FaceMesh, MeshModels, MeshParams, MeshReport, MeshState, MeshStatus, MeshTracker, MeshWorkspace};
+pub use tracker::{
+    FaceMesh, MeshModels, MeshParams, MeshReport, MeshState, MeshStatus, MeshTracker, MeshWorkspace,
+    SMALL_FACE_INTERVAL,
+};
 
 /// File name of the BlazeFace short-range detector in the model cache.
 pub const FACE_DETECTOR_MODEL: &str = "face_detector.tflite";

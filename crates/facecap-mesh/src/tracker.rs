@@ -4,7 +4,9 @@
 //! `face_landmarks_detector_graph.cc`):
 //!
 //! * no face tracked: run the detector, take the best detection, region =
-//!   [`Detection::to_rect`] with scale 1.5;
+//!   [`Detection::to_rect`] with scale 1.5; where it finds none, facecap (not MediaPipe)
+//!   looks again for small faces on windows of the image ([`MeshParams::small_faces`],
+//!   [`FaceDetector::detect_small_into`]);
 //! * landmarks: the region sampled to 256 x 256 (values in [0, 1], edge pixels
 //!   replicated), the model's 478 (x, y, z) in tensor pixels mapped back with
 //!   `p = c + R(theta) (l / 256 - 0.5) * size` (MediaPipe's `LandmarkProjectionCalculator`,
@@ -45,6 +47,7 @@ pub const IRIS_CENTERS: [usize; 2] = [468, 473];
 /// | `min_presence` | 0.5 | minimum face presence to keep tracking (`min_face_presence_confidence`) | [0, 1] |
 /// | `roi_scale` | 1.5 | region size over the face box (MediaPipe's `scale_x/scale_y`) | [1, 4] |
 /// | `smoothing` | `None` | one-euro smoothing of the output as FaceLandmarker's video mode | see [`SmoothingParams`] |
+/// | `small_faces` | `true` | where the detector finds no face, look again for small faces ([`FaceDetector::detect_small_into`]; in a video at most every [`SMALL_FACE_INTERVAL`] frames) | |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshParams {
     /// Face detector settings.
@@ -55,7 +58,15 @@ pub struct MeshParams {
     pub roi_scale: f32,
     /// Output smoothing (`None` = raw landmarks).
     pub smoothing: Option<SmoothingParams>,
+    /// Look again for small faces where the whole-image detection finds none (MediaPipe
+    /// does not: `false` is FaceLandmarker's behaviour).
+    pub small_faces: bool,
 }
+
+/// Frames between two small-face searches while a video shows no face: the search costs
+/// one detector run per window ([`FaceDetector::detect_small_into`]), so a long stretch
+/// without a face is searched on every tenth frame (a third of a second at 30 frames/s).
+pub const SMALL_FACE_INTERVAL: u32 = 10;
 
 impl Default for MeshParams {
     fn default() -> Self {
@@ -64,6 +75,7 @@ impl Default for MeshParams {
             min_presence: 0.5,
             roi_scale: 1.5,
             smoothing: None,
+            small_faces: true,
         }
     }
 }
@@ -143,6 +155,9 @@ pub struct MeshState {
     pub next_rect: Option<NormRect>,
     /// Smoothing filters, when [`MeshParams::smoothing`] is set.
     pub smoother: Option<LandmarkSmoother>,
+    /// Frames to go before the next small-face search (0 = search on the next frame
+    /// without a face; see [`SMALL_FACE_INTERVAL`]).
+    pub small_face_wait: u32,
 }
 
 /// How a frame went.
@@ -240,6 +255,7 @@ impl MeshTracker {
         MeshState {
             next_rect: None,
             smoother: self.params.smoothing.and_then(|p| LandmarkSmoother::new(p).ok()),
+            small_face_wait: 0,
         }
     }
 
@@ -331,6 +347,25 @@ impl MeshTracker {
         })
     }
 
+    /// The small-face search of a frame without a face ([`MeshParams::small_faces`]):
+    /// runs [`FaceDetector::detect_small_into`] into the workspace's detections unless it
+    /// is off or waiting ([`SMALL_FACE_INTERVAL`]); returns whether it ran.
+    fn search_small(&self, img: &RgbView<'_>, ws: &mut MeshWorkspace, state: &mut MeshState) -> Result<bool> {
+        if !self.params.small_faces {
+            return Ok(false);
+        }
+        if state.small_face_wait > 0 {
+            state.small_face_wait -= 1;
+            return Ok(false);
+        }
+        self.detector
+            .detect_small_into(img, &mut ws.detector, &mut ws.detections)?;
+        if ws.detections.is_empty() {
+            state.small_face_wait = SMALL_FACE_INTERVAL;
+        }
+        Ok(true)
+    }
+
     /// Processes one frame taken at `timestamp_s` seconds (used by smoothing only).
     ///
     /// # Errors
@@ -350,11 +385,15 @@ impl MeshTracker {
             detection_score: 0.0,
             presence: 0.0,
         };
+        let mut small_searched = false;
         let rect = match state.next_rect {
             Some(r) => r,
             None => {
                 report.detector_ran = true;
                 self.detector.detect_into(img, &mut ws.detector, &mut ws.detections)?;
+                if ws.detections.is_empty() {
+                    small_searched = self.search_small(img, ws, state)?;
+                }
                 let Some(d) = ws.detections.first() else {
                     report.status = MeshStatus::NoFace;
                     if let Some(s) = &mut state.smoother {
@@ -368,6 +407,19 @@ impl MeshTracker {
             }
         };
         report.presence = self.landmarks_in(img, &rect, ws, out)?;
+        if report.presence < self.params.min_presence
+            && report.detector_ran
+            && !small_searched
+            && self.search_small(img, ws, state)?
+        {
+            // the whole image's detection was no face the landmark model accepts (a
+            // group photo's far faces, a pattern): the small faces' best, if any
+            if let Some(d) = ws.detections.first().copied() {
+                report.detection_score = d.score;
+                let rect = d.to_rect(w, h, self.params.roi_scale);
+                report.presence = self.landmarks_in(img, &rect, ws, out)?;
+            }
+        }
         if report.presence < self.params.min_presence {
             report.status = MeshStatus::Lost;
             state.next_rect = None;
@@ -377,6 +429,7 @@ impl MeshTracker {
             return Ok(report);
         }
         state.next_rect = self.rect_from_landmarks(&ws.norm, w, h);
+        state.small_face_wait = 0;
         if let Some(s) = &mut state.smoother {
             s.apply(timestamp_s, out);
         }

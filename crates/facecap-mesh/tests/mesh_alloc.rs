@@ -100,3 +100,35 @@ fn tracking_allocates_nothing_after_warm_up_and_stays_on_the_face() {
         );
     }
 }
+
+#[test]
+fn frames_without_a_face_allocate_nothing_after_warm_up() {
+    let test = "frames_without_a_face_allocate_nothing_after_warm_up";
+    let (Some(det), Some(lm)) = (
+        model(test, facecap_mesh::FACE_DETECTOR_MODEL),
+        model(test, facecap_mesh::FACE_LANDMARKS_MODEL),
+    ) else {
+        return;
+    };
+    let tracker = MeshTracker::new(MeshModels::load(&det, &lm).unwrap(), MeshParams::default()).unwrap();
+    let mut ws = tracker.workspace();
+    let mut mesh = FaceMesh::default();
+    // no face: the whole-image pass and the small-face search both run
+    let img = image::RgbImage::from_raw(640, 480, pattern(640).into_iter().take(640 * 480 * 3).collect()).unwrap();
+    let view = RgbView::from_image(&img).unwrap();
+    let mut state = MeshState::default();
+    let r = tracker.track_into(&view, 0.0, &mut ws, &mut state, &mut mesh).unwrap();
+    assert_eq!(r.status, MeshStatus::NoFace);
+    assert_eq!(state.small_face_wait, facecap_mesh::SMALL_FACE_INTERVAL);
+    let before = allocs();
+    for _ in 0..3 {
+        state.small_face_wait = 0;
+        let r = tracker.track_into(&view, 0.0, &mut ws, &mut state, &mut mesh).unwrap();
+        assert_eq!(r.status, MeshStatus::NoFace);
+    }
+    assert_eq!(allocs() - before, 0, "allocations in the small-face search");
+    // while waiting, the search does not run; the count goes down frame by frame
+    let r = tracker.track_into(&view, 0.0, &mut ws, &mut state, &mut mesh).unwrap();
+    assert!(r.detector_ran);
+    assert_eq!(state.small_face_wait, facecap_mesh::SMALL_FACE_INTERVAL - 1);
+}
