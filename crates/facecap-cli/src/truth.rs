@@ -70,7 +70,8 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
                 .sum::<f64>()
                 / NUM_LANDMARKS as f64;
             let nme = mean / tl.interocular_distance();
-            if !(nme <= OTHER_FACE_NME) {
+            // NaN (a degenerate inter-ocular distance) counts as another face too
+            if nme.is_nan() || nme > OTHER_FACE_NME {
                 *same = false;
                 continue;
             }

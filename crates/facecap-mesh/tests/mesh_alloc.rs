@@ -103,14 +103,12 @@ fn tracking_allocates_nothing_after_warm_up_and_stays_on_the_face() {
 
 #[test]
 fn frames_without_a_face_allocate_nothing_after_warm_up() {
-    let test = "frames_without_a_face_allocate_nothing_after_warm_up";
-    let (Some(det), Some(lm)) = (
-        model(test, facecap_mesh::FACE_DETECTOR_MODEL),
-        model(test, facecap_mesh::FACE_LANDMARKS_MODEL),
+    let Some(tracker) = tracker(
+        "frames_without_a_face_allocate_nothing_after_warm_up",
+        MeshParams::default(),
     ) else {
         return;
     };
-    let tracker = MeshTracker::new(MeshModels::load(&det, &lm).unwrap(), MeshParams::default()).unwrap();
     let mut ws = tracker.workspace();
     let mut mesh = FaceMesh::default();
     // no face: the whole-image pass and the small-face search both run

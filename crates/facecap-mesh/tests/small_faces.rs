@@ -11,7 +11,7 @@
 mod common;
 
 use common::*;
-use facecap_mesh::{Detection, FaceDetector, FaceMesh, MeshModels, MeshParams, MeshTracker, RgbView};
+use facecap_mesh::{Detection, FaceDetector, FaceMesh, MeshParams, MeshTracker, RgbView};
 
 /// `(left, top, width, height)` pixel boxes of one image in dlib's XML.
 fn xml_boxes(xml: &str, file: &str) -> Vec<[f32; 4]> {
@@ -39,13 +39,7 @@ fn centre(d: &Detection, w: u32, h: u32) -> (f32, f32) {
 }
 
 fn detector(test: &str) -> Option<(MeshTracker, FaceDetector)> {
-    let (Some(det), Some(lm)) = (
-        model(test, facecap_mesh::FACE_DETECTOR_MODEL),
-        model(test, facecap_mesh::FACE_LANDMARKS_MODEL),
-    ) else {
-        return None;
-    };
-    let tracker = MeshTracker::new(MeshModels::load(&det, &lm).unwrap(), MeshParams::default()).unwrap();
+    let tracker = tracker(test, MeshParams::default())?;
     let detector = tracker.detector().clone();
     Some((tracker, detector))
 }
@@ -140,12 +134,8 @@ fn the_tracker_finds_a_small_annotated_face_in_a_large_photo() {
     let view = RgbView::from_image(&img).unwrap();
     let mut ws = tracker.workspace();
     let mut mesh = FaceMesh::default();
-    let off = MeshTracker::new(
-        MeshModels::load(
-            &model(test, facecap_mesh::FACE_DETECTOR_MODEL).unwrap(),
-            &model(test, facecap_mesh::FACE_LANDMARKS_MODEL).unwrap(),
-        )
-        .unwrap(),
+    let off = common::tracker(
+        test,
         MeshParams {
             small_faces: false,
             ..MeshParams::default()

@@ -137,3 +137,11 @@ pub fn floats(v: &serde_json::Value) -> Vec<f32> {
 pub fn model(test: &str, name: &str) -> Option<PathBuf> {
     facecap_core::paths::model_file_or_skip(test, name)
 }
+
+/// A tracker with `params` on the cached models, or `None` (with a SKIP line naming
+/// `test`) when they are absent.
+pub fn tracker(test: &str, params: facecap_mesh::MeshParams) -> Option<facecap_mesh::MeshTracker> {
+    let det = model(test, facecap_mesh::FACE_DETECTOR_MODEL)?;
+    let lm = model(test, facecap_mesh::FACE_LANDMARKS_MODEL)?;
+    Some(facecap_mesh::MeshTracker::new(facecap_mesh::MeshModels::load(&det, &lm).unwrap(), params).unwrap())
+}
