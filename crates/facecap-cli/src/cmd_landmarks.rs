@@ -17,14 +17,16 @@
 //!   and points (red).
 //!
 //! With `--landmarks mesh` (MediaPipe's face detector and 478-point face mesh, run afresh
-//! on every image as FaceLandmarker's IMAGE mode; one face per image, docs/mesh.md):
+//! on every image as FaceLandmarker's IMAGE mode, every face, with facecap's small-face
+//! search; docs/mesh.md):
 //!
 //! * `<out>/landmarks.csv`: one row per input image in input order (`frame` = its 0-based
-//!   position, `timestamp` 0), `frame,timestamp,success,confidence,x_0,y_0,z_0,...,z_477`
-//!   (the 478-point layout of docs/formats.md; `confidence` = the mesh's face presence);
-//! * `<out>/<stem>_0.pts` with the 478 points (x, y), and `summary.csv` as above (the box
-//!   is the points' bounding box, `score` the detector's);
-//! * with `--draw`, the image with the 478 points.
+//!   position, `timestamp` 0) with the largest face,
+//!   `frame,timestamp,success,confidence,x_0,y_0,z_0,...,z_477` (the 478-point layout of
+//!   docs/formats.md; `confidence` = the mesh's face presence);
+//! * `<out>/<stem>_<face>.pts` per face (largest first) with the 478 points (x, y), and
+//!   `summary.csv` as above (the box is the points' bounding box, `score` the detector's);
+//! * with `--draw`, the image with every face's 478 points.
 //!
 //! `--model`, `--box`, `--upsample`, `--ert-precision` and `--grey` are dlib's and are
 //! refused or unused with `mesh`.

@@ -1,7 +1,8 @@
 //! Images mode of `facecap landmarks --landmarks mesh`: MediaPipe's face detector and
-//! 478-point face mesh run afresh on every image (FaceLandmarker's IMAGE mode, one face),
-//! writing `landmarks.csv` in the 478-point layout, a `.pts` of the 478 points per face
-//! and `summary.csv` (module docs of [`crate::cmd_landmarks`]).
+//! 478-point face mesh run afresh on every image (FaceLandmarker's IMAGE mode, every face,
+//! with facecap's small-face search), writing `landmarks.csv` in the 478-point layout
+//! (the largest face), a `.pts` of the 478 points per face and `summary.csv` (module
+//! docs of [`crate::cmd_landmarks`]).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -19,6 +20,8 @@ use crate::cmd_landmarks::{csv_field, Args};
 struct ImageMesh {
     /// Whether a face was found.
     found: bool,
+    /// How many faces were found.
+    faces: usize,
     /// Face presence of the found face (0 without one).
     presence: f64,
 }
@@ -50,11 +53,12 @@ pub fn run_images(args: &Args) -> anyhow::Result<ExitCode> {
                 failed += 1;
                 ImageMesh {
                     found: false,
+                    faces: 0,
                     presence: 0.0,
                 }
             }
         };
-        faces += usize::from(got.found);
+        faces += got.faces;
         mesh_values(got.found.then_some(mesh.points.as_slice()), &mut values)?;
         csv.write_row(&FrameRow {
             frame: k as u64,
@@ -81,7 +85,8 @@ pub fn run_images(args: &Args) -> anyhow::Result<ExitCode> {
     })
 }
 
-/// One image: the mesh into `mesh`, its `.pts`, its `summary.csv` row and drawing.
+/// One image: every face's `.pts`, `summary.csv` row and drawing; the largest face's
+/// mesh into `mesh` (its `landmarks.csv` row).
 fn mesh_image(
     args: &Args,
     input: &Path,
@@ -92,45 +97,53 @@ fn mesh_image(
     summary: &mut String,
 ) -> anyhow::Result<ImageMesh> {
     let mut rgb = facecap_io::image_io::load_rgb(input)?;
-    // a fresh state per image: detection, then landmarks in the detected region
-    let mut state = tracker.state();
-    let report = tracker
-        .track_into(&RgbView::from_image(&rgb)?, 0.0, ws, &mut state, mesh)
+    // detection afresh, then landmarks in every detected region
+    let faces = tracker
+        .faces_in_image(&RgbView::from_image(&rgb)?, ws)
         .with_context(|| format!("running the face mesh on {}", input.display()))?;
     let name = csv_field(&input.display().to_string());
-    let finite = mesh.points.iter().flatten().all(|v| v.is_finite());
-    if !report.has_face() || !finite || mesh.points.len() != MESH_POINTS {
+    let Some(first) = faces.first() else {
         let _ = writeln!(summary, "{name},-1,,,,,,0,,");
         eprintln!("{}: no face found", input.display());
         return Ok(ImageMesh {
             found: false,
+            faces: 0,
             presence: 0.0,
         });
+    };
+    *mesh = first.mesh.clone();
+    let mut drawn = Vec::with_capacity(faces.len());
+    for (k, face) in faces.iter().enumerate() {
+        let points: Vec<Point2<f64>> = face
+            .mesh
+            .points
+            .iter()
+            .map(|p| Point2::new(f64::from(p[0]), f64::from(p[1])))
+            .collect();
+        let pts_name = format!("{stem}_{k}.pts");
+        facecap_io::formats::pts::write_pts_points(args.out.join(&pts_name), &points)
+            .with_context(|| format!("writing {pts_name}"))?;
+        let (l, t, r, b) = bounding_box(&points);
+        let _ = writeln!(
+            summary,
+            "{name},{k},{l},{t},{r},{b},{:.6},{},{},",
+            face.detection_score,
+            points.len(),
+            csv_field(&pts_name)
+        );
+        drawn.push(((l, t, r, b), points));
     }
-    let points: Vec<Point2<f64>> = mesh
-        .points
-        .iter()
-        .map(|p| Point2::new(f64::from(p[0]), f64::from(p[1])))
-        .collect();
-    let pts_name = format!("{stem}_0.pts");
-    facecap_io::formats::pts::write_pts_points(args.out.join(&pts_name), &points)
-        .with_context(|| format!("writing {pts_name}"))?;
-    let (l, t, r, b) = bounding_box(&points);
-    let _ = writeln!(
-        summary,
-        "{name},0,{l},{t},{r},{b},{:.6},{},{},",
-        report.detection_score,
-        points.len(),
-        csv_field(&pts_name)
-    );
     if args.draw {
-        draw_mesh(&mut rgb, (l, t, r, b), &points);
+        for (bx, points) in &drawn {
+            draw_mesh(&mut rgb, *bx, points);
+        }
         let png = args.out.join(format!("{stem}_landmarks.png"));
         crate::save_png_atomic(&rgb, &png)?;
     }
     Ok(ImageMesh {
         found: true,
-        presence: f64::from(report.presence).clamp(0.0, 1.0),
+        faces: faces.len(),
+        presence: f64::from(first.mesh.presence).clamp(0.0, 1.0),
     })
 }
 

@@ -43,8 +43,8 @@ pub use error::{Error, Result};
 pub use roi::{NormRect, RgbView};
 pub use smoothing::{LandmarkSmoother, SmoothingParams};
 pub use tracker::{
-    FaceMesh, MeshModels, MeshParams, MeshReport, MeshState, MeshStatus, MeshTracker, MeshWorkspace,
-    SMALL_FACE_INTERVAL,
+    FaceMesh, ImageFace, MeshModels, MeshParams, MeshReport, MeshState, MeshStatus, MeshTracker, MeshWorkspace,
+    MAX_IMAGE_DETECTIONS, SAME_FACE_IOU, SMALL_FACE_INTERVAL,
 };
 
 /// File name of the BlazeFace short-range detector in the model cache.

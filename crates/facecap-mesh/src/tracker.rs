@@ -148,6 +148,55 @@ pub struct FaceMesh {
     pub rect: NormRect,
 }
 
+/// One face of a still image ([`MeshTracker::faces_in_image`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ImageFace {
+    /// The face's 478 landmarks.
+    pub mesh: FaceMesh,
+    /// Score of the detection the landmarks were computed from.
+    pub detection_score: f32,
+}
+
+impl ImageFace {
+    /// Pixel bounding box `(left, top, right, bottom)` of the landmarks.
+    pub fn bounds(&self) -> [f32; 4] {
+        bounds(&self.mesh.points)
+    }
+}
+
+/// Pixel bounding box `(left, top, right, bottom)` of points (`[inf, inf, -inf, -inf]`
+/// for none).
+fn bounds(points: &[[f32; 3]]) -> [f32; 4] {
+    points.iter().fold(
+        [f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY],
+        |b, p| [b[0].min(p[0]), b[1].min(p[1]), b[2].max(p[0]), b[3].max(p[1])],
+    )
+}
+
+/// Area of a `(left, top, right, bottom)` box (0 when empty).
+fn area(b: &[f32; 4]) -> f32 {
+    (b[2] - b[0]).max(0.0) * (b[3] - b[1]).max(0.0)
+}
+
+/// Intersection over union of two boxes.
+fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let inter = area(&[a[0].max(b[0]), a[1].max(b[1]), a[2].min(b[2]), a[3].min(b[3])]);
+    let union = area(a) + area(b) - inter;
+    if union > 0.0 {
+        inter / union
+    } else {
+        0.0
+    }
+}
+
+/// At most this many detections of one image get the landmark model
+/// ([`MeshTracker::faces_in_image`]).
+pub const MAX_IMAGE_DETECTIONS: usize = 64;
+
+/// Faces of a still image whose landmark boxes overlap more than this (intersection over
+/// union) are one face found twice ([`MeshTracker::faces_in_image`]).
+pub const SAME_FACE_IOU: f32 = 0.3;
+
 /// What carries between frames (make one per video with [`MeshTracker::state`]).
 #[derive(Debug, Clone, Default)]
 pub struct MeshState {
@@ -345,6 +394,67 @@ impl MeshTracker {
             height: long / h as f32 * self.params.roi_scale,
             rotation,
         })
+    }
+
+    /// Every face of a still image, largest first (FaceLandmarker's IMAGE mode with
+    /// `num_faces` unbounded, plus facecap's small-face search):
+    ///
+    /// * the detector runs on the whole image and, unless [`MeshParams::small_faces`] is
+    ///   off, on the small-face windows as well ([`FaceDetector::detect_small_into`]), so a
+    ///   group photo's far faces are found next to its near ones;
+    /// * each detection (the whole image's first, each list best first; at most
+    ///   [`MAX_IMAGE_DETECTIONS`]) gets the landmark model in its region, unless its box
+    ///   centre lies inside a face already found;
+    /// * a face is kept when its presence is at least `min_presence`, its landmarks are
+    ///   finite, and its landmark box overlaps no kept face's by more than
+    ///   [`SAME_FACE_IOU`] (the same face found by both passes).
+    ///
+    /// Allocates its result; for video use [`MeshTracker::track_into`].
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] for a workspace of another tracker.
+    pub fn faces_in_image(&self, img: &RgbView<'_>, ws: &mut MeshWorkspace) -> Result<Vec<ImageFace>> {
+        let (w, h) = (img.width, img.height);
+        self.detector.detect_into(img, &mut ws.detector, &mut ws.detections)?;
+        let mut detections = ws.detections.clone();
+        if self.params.small_faces {
+            self.detector
+                .detect_small_into(img, &mut ws.detector, &mut ws.detections)?;
+            detections.extend_from_slice(&ws.detections);
+        }
+        detections.truncate(MAX_IMAGE_DETECTIONS);
+        let mut faces: Vec<ImageFace> = Vec::new();
+        let mut boxes: Vec<[f32; 4]> = Vec::new();
+        let mut mesh = FaceMesh::default();
+        for d in &detections {
+            let (cx, cy) = (
+                (d.xmin + d.width / 2.0) * w as f32,
+                (d.ymin + d.height / 2.0) * h as f32,
+            );
+            if boxes
+                .iter()
+                .any(|b| cx >= b[0] && cx <= b[2] && cy >= b[1] && cy <= b[3])
+            {
+                continue;
+            }
+            let rect = d.to_rect(w, h, self.params.roi_scale);
+            let presence = self.landmarks_in(img, &rect, ws, &mut mesh)?;
+            let finite = mesh.points.iter().flatten().all(|v| v.is_finite());
+            if !(presence >= self.params.min_presence && finite && mesh.points.len() == NUM_LANDMARKS) {
+                continue;
+            }
+            let b = bounds(&mesh.points);
+            if boxes.iter().any(|k| iou(k, &b) > SAME_FACE_IOU) {
+                continue;
+            }
+            boxes.push(b);
+            faces.push(ImageFace {
+                mesh: mesh.clone(),
+                detection_score: d.score,
+            });
+        }
+        faces.sort_by(|a, b| area(&b.bounds()).total_cmp(&area(&a.bounds())));
+        Ok(faces)
     }
 
     /// The small-face search of a frame without a face ([`MeshParams::small_faces`]):

@@ -181,3 +181,63 @@ fn tiles_cover_the_image_and_overlap_by_a_third() {
     assert_eq!(facecap_mesh::Window::tiles(480, 480).count(), 16);
     assert_eq!(facecap_mesh::Window::tiles(1920, 1080).count(), 12);
 }
+
+/// `MeshTracker::faces_in_image` (the images mode of `facecap landmarks --landmarks mesh`)
+/// gives every annotated face of the group photos, once each, largest first.
+#[test]
+fn every_face_of_a_group_photo_gets_its_mesh_once() {
+    let test = "every_face_of_a_group_photo_gets_its_mesh_once";
+    let Some(tracker) = tracker(test, MeshParams::default()) else {
+        return;
+    };
+    let mut xml = String::new();
+    for name in [
+        "training_with_face_landmarks.xml",
+        "testing_subset_shared_with_face_landmarks.xml",
+    ] {
+        let Some(p) = facecap_core::paths::shared_data_file(test, &format!("annotated/dlib_faces/{name}")) else {
+            return;
+        };
+        xml += &std::fs::read_to_string(p).unwrap();
+    }
+    let mut ws = tracker.workspace();
+    for file in ["2007_007763.jpg", "2008_002470.jpg"] {
+        let Some(path) = facecap_core::paths::shared_data_file(test, &format!("annotated/dlib_faces/{file}")) else {
+            return;
+        };
+        let img = image::open(&path).unwrap().to_rgb8();
+        let faces = tracker
+            .faces_in_image(&RgbView::from_image(&img).unwrap(), &mut ws)
+            .unwrap();
+        let boxes = xml_boxes(&xml, file);
+        // each face's nose tip (mesh point 1) in its own annotated box
+        let mut hit: Vec<usize> = faces
+            .iter()
+            .map(|f| {
+                let p = f.mesh.points[1];
+                boxes
+                    .iter()
+                    .position(|b| p[0] >= b[0] && p[0] <= b[0] + b[2] && p[1] >= b[1] && p[1] <= b[1] + b[3])
+                    .unwrap_or_else(|| panic!("{file}: a face at {p:?} is no annotated face"))
+            })
+            .collect();
+        eprintln!("{file}: {} faces of {} annotated", faces.len(), boxes.len());
+        let n = hit.len();
+        hit.sort_unstable();
+        hit.dedup();
+        assert_eq!(hit.len(), n, "{file}: a face found twice");
+        assert_eq!(n, boxes.len(), "{file}: {n} of {} faces", boxes.len());
+        let areas: Vec<f32> = faces
+            .iter()
+            .map(|f| {
+                let b = f.bounds();
+                (b[2] - b[0]) * (b[3] - b[1])
+            })
+            .collect();
+        assert!(
+            areas.windows(2).all(|a| a[0] >= a[1]),
+            "{file}: not largest first: {areas:?}"
+        );
+        assert!(faces.iter().all(|f| f.mesh.presence >= 0.5));
+    }
+}
