@@ -991,8 +991,17 @@ fn write_report(
                     1.0,
                 ),
             };
+            // a small face is shown cropped and enlarged, not as a few pixels of the frame,
+            // with its points drawn to the crop's size
+            let face: Vec<(f64, f64)> = f.landmarks.as_ref().map_or_else(Vec::new, |l| {
+                l.points.iter().map(|p| (p.x * scale, p.y * scale)).collect()
+            });
+            let square = report::face_square(rgb.width(), rgb.height(), &face);
             let mut ws = facecap_pipeline::RenderWorkspace::default();
-            let radius = (f64::from(rgb.height()) / 110.0).max(2.5);
+            let radius = match square {
+                Some((_, _, n)) => (f64::from(n) / 110.0).max(1.0),
+                None => (f64::from(rgb.height()) / 110.0).max(2.5),
+            };
             facecap_pipeline::preview::draw_overlay(
                 &mut rgb,
                 &setup.renderer,
@@ -1002,6 +1011,11 @@ fn write_report(
                 radius,
                 &mut ws,
             )?;
+            let crop_note = if square.is_some() { ", cropped to the face" } else { "" };
+            let rgb = match square {
+                Some(sq) => report::crop_square(&rgb, sq, rgb.height().clamp(64, 720)),
+                None => rgb,
+            };
             let size = rgb.height().clamp(64, 720);
             let render = setup.renderer.render(&f.weights, f.pose.as_ref(), size)?;
             let tile = report::side_by_side(&rgb, &render);
@@ -1012,7 +1026,7 @@ fn write_report(
             Ok((
                 format!("report/{name}"),
                 format!(
-                    "frame {idx}, t = {:.2} s, confidence {:.2}{state}",
+                    "frame {idx}, t = {:.2} s, confidence {:.2}{crop_note}{state}",
                     f.timestamp, f.confidence
                 ),
             ))

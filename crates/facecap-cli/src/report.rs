@@ -578,6 +578,48 @@ pub struct Section {
     pub note: String,
 }
 
+/// A face this much smaller than the frame's short side (bounding box of its landmarks,
+/// long side) gets its report tile cropped to it ([`face_crop`]).
+pub const CROP_FACE_BELOW: f64 = 0.25;
+/// The crop's side over the face box's long side.
+pub const CROP_MARGIN: f64 = 2.2;
+
+/// The square `(left, top, side)` in pixels around a small face of a `width` x `height`
+/// frame, `points` its landmarks in the frame's pixels: [`CROP_MARGIN`] times the long
+/// side of their box, centred on it and moved inside the frame. `None` when the face is
+/// large enough to be seen in the whole frame (long side of its box at least
+/// [`CROP_FACE_BELOW`] of the frame's short side), or a point is not finite.
+pub fn face_square(width: u32, height: u32, points: &[(f64, f64)]) -> Option<(u32, u32, u32)> {
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
+    for &(x, y) in points {
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        x0 = x0.min(x);
+        y0 = y0.min(y);
+        x1 = x1.max(x);
+        y1 = y1.max(y);
+    }
+    let (w, h) = (f64::from(width), f64::from(height));
+    let long = (x1 - x0).max(y1 - y0);
+    let short_side = w.min(h);
+    if !(long.is_finite() && long > 0.0 && long < CROP_FACE_BELOW * short_side) {
+        return None;
+    }
+    let s = (CROP_MARGIN * long).min(short_side);
+    let left = ((x0 + x1 - s) / 2.0).clamp(0.0, w - s);
+    let top = ((y0 + y1 - s) / 2.0).clamp(0.0, h - s);
+    let (l, t) = (left.round() as u32, top.round() as u32);
+    let n = (s.round() as u32).max(1).min(width - l).min(height - t);
+    Some((l, t, n))
+}
+
+/// The square `(left, top, n)` of `img` (from [`face_square`]) scaled to `side` x `side`.
+pub fn crop_square(img: &RgbImage, (l, t, n): (u32, u32, u32), side: u32) -> RgbImage {
+    let view = image::imageops::crop_imm(img, l, t, n, n).to_image();
+    image::imageops::resize(&view, side.max(1), side.max(1), image::imageops::FilterType::Triangle)
+}
+
 /// Writes `report.html` of a capture: the preview video at the top (when given), the
 /// summary table, the frame tiles (relative file names with captions) and the plot
 /// sections.
@@ -700,6 +742,43 @@ mod tests {
             200,
         );
         assert!(svg.starts_with("<svg") && svg.ends_with("</svg>") && svg.contains("a&lt;b"));
+    }
+
+    fn face_crop(img: &RgbImage, points: &[(f64, f64)], side: u32) -> Option<RgbImage> {
+        face_square(img.width(), img.height(), points).map(|sq| crop_square(img, sq, side))
+    }
+
+    #[test]
+    fn small_faces_get_a_cropped_tile() {
+        // a 1920 x 1080 frame, red inside a 100 px face box at (1600..1700, 900..1000)
+        let img = RgbImage::from_fn(1920, 1080, |x, y| {
+            if (1600..1700).contains(&x) && (900..1000).contains(&y) {
+                image::Rgb([255, 0, 0])
+            } else {
+                image::Rgb([0, 0, 255])
+            }
+        });
+        let face = [(1600.0, 900.0), (1699.0, 999.0), (1650.0, 950.0)];
+        let tile = face_crop(&img, &face, 480).expect("a 100 px face in 1080 p is cropped");
+        assert_eq!(tile.dimensions(), (480, 480));
+        // 2.2 face widths around the face, centred: the face fills about (1 / 2.2)^2 of it
+        let red = tile.pixels().filter(|p| p.0[0] > 128).count() as f64 / (480.0 * 480.0);
+        assert!((red - (1.0f64 / 2.2).powi(2)).abs() < 0.03, "{red}");
+        assert!(tile.get_pixel(240, 240).0[0] > 128 && tile.get_pixel(0, 0).0[0] < 128);
+        // near the frame's edge the square moves inside the frame: the face off centre
+        let low = [(1600.0, 1000.0), (1699.0, 1079.0)];
+        let tile = face_crop(&img, &low, 480).unwrap();
+        assert!(
+            tile.get_pixel(240, 470).0[2] > 128,
+            "the frame's bottom rows lie at the tile's bottom"
+        );
+        assert!(tile.get_pixel(240, 100).0[0] > 128, "the red box above them");
+        // a face a third of the frame's height is shown whole; no points, no crop
+        assert!(face_crop(&img, &[(800.0, 300.0), (1200.0, 700.0)], 480).is_none());
+        assert!(face_crop(&img, &[], 480).is_none());
+        assert!(face_crop(&img, &[(f64::NAN, 1.0), (3.0, 4.0)], 480).is_none());
+        // a face at the very corner: the crop stays inside the frame
+        assert!(face_crop(&img, &[(0.0, 0.0), (40.0, 40.0)], 100).is_some());
     }
 
     #[test]
