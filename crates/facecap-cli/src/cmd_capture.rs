@@ -1235,7 +1235,7 @@ fn write_report(
         ("solver".to_string(), setup.expression.method.name().to_string()),
     ];
     if let Some(t) = inputs.truth {
-        rows.push(("error against ground truth".to_string(), t.to_string()));
+        rows.extend(crate::truth::report_rows(t));
     }
     report::write_capture_html(
         out_dir,

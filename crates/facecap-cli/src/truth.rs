@@ -142,6 +142,56 @@ pub fn evaluate(video: &Path, names: &[String], est: &[Estimate]) -> anyhow::Res
     })))
 }
 
+/// The truth comparison ([`evaluate`]'s value) as rows of the report's summary table:
+/// figures rounded, `-` where a figure is `null` (no frame of the truth's face), the five
+/// shapes with the largest error by name.
+pub fn report_rows(truth: &serde_json::Value) -> Vec<(String, String)> {
+    let num = |k: &str| truth[k].as_f64().filter(|v| v.is_finite());
+    let fmt = |v: Option<f64>, digits: usize| v.map_or_else(|| "-".to_string(), |v| format!("{v:.digits$}"));
+    let mut rows = vec![
+        (
+            "truth: frames compared".to_string(),
+            format!(
+                "{} ({} of another face left out)",
+                truth["frames_compared"].as_u64().unwrap_or(0),
+                truth["frames_other_face"].as_u64().unwrap_or(0)
+            ),
+        ),
+        ("truth: weight RMSE".to_string(), fmt(num("weight_rmse"), 4)),
+        (
+            "truth: landmark error".to_string(),
+            format!(
+                "{} px mean, NME {} (inter-ocular)",
+                fmt(num("landmark_error_px"), 2),
+                fmt(num("landmark_nme_interocular"), 4)
+            ),
+        ),
+        (
+            "truth: head rotation error".to_string(),
+            format!(
+                "{} deg mean, {} deg max",
+                fmt(num("rotation_error_deg_mean"), 2),
+                fmt(num("rotation_error_deg_max"), 2)
+            ),
+        ),
+    ];
+    if let Some(per) = truth["weight_rmse_per_shape"].as_object() {
+        let mut worst: Vec<(&String, f64)> = per
+            .iter()
+            .filter_map(|(k, v)| v.as_f64().filter(|v| v.is_finite()).map(|v| (k, v)))
+            .collect();
+        worst.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let text: Vec<String> = worst.iter().take(5).map(|(k, v)| format!("{k} {v:.3}")).collect();
+        if !text.is_empty() {
+            rows.push(("truth: largest weight errors (RMSE)".to_string(), text.join(", ")));
+        }
+    }
+    if let Some(f) = truth["truth_file"].as_str() {
+        rows.push(("truth file".to_string(), f.to_string()));
+    }
+    rows
+}
+
 /// The mutation strategy the parser fuzz tests share.
 #[cfg(test)]
 #[path = "../../facecap-io/tests/fuzz_common/mod.rs"]
@@ -262,6 +312,32 @@ mod fuzz {
         assert_eq!(v["frames_compared"], 0);
         assert_eq!(v["frames_other_face"], 3);
         assert!(v["weight_rmse"].is_null(), "{}", v["weight_rmse"]);
+        // the report's rows: no figure made up for nothing compared
+        let rows = report_rows(&v);
+        let row = |k: &str| rows.iter().find(|r| r.0 == k).map(|r| r.1.clone()).unwrap();
+        assert_eq!(row("truth: weight RMSE"), "-");
+        assert_eq!(row("truth: frames compared"), "0 (3 of another face left out)");
+    }
+
+    #[test]
+    fn the_report_shows_the_truth_as_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("clip.truth.csv"), seed()).unwrap();
+        let names = ["jawOpen".to_string(), "mouthSmileLeft".to_string()];
+        let v = evaluate(&dir.path().join("clip.y4m"), &names, &estimates())
+            .unwrap()
+            .unwrap();
+        let rows = report_rows(&v);
+        let row = |k: &str| rows.iter().find(|r| r.0 == k).map(|r| r.1.clone()).unwrap();
+        assert_eq!(
+            row("truth: weight RMSE"),
+            format!("{:.4}", v["weight_rmse"].as_f64().unwrap())
+        );
+        assert_eq!(row("truth: frames compared"), "3 (0 of another face left out)");
+        assert!(row("truth: landmark error").ends_with("(inter-ocular)"));
+        let worst = row("truth: largest weight errors (RMSE)");
+        assert!(worst.contains("jawOpen") && worst.contains("mouthSmileLeft"), "{worst}");
+        assert!(rows.iter().all(|r| !r.1.contains('{')), "{rows:?}");
     }
 
     proptest! {
