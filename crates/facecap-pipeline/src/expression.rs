@@ -235,6 +235,8 @@ pub struct ExpressionSink<'a> {
     /// The rig's `(mouthShrugLower, mouthRollLower)`, when it has both (see
     /// [`rolled_lip_shrug`]).
     shrug_idx: Option<(usize, usize)>,
+    /// The lips' red and the chin's rise ([`crate::lips`]).
+    lips: crate::lips::Lips,
     /// Neutral calibration on the fly (live input), see [`ExpressionSink::with_live_neutral`].
     live: Option<LiveNeutralState>,
     /// A second rig solved on the same frames, see [`ExpressionSink::with_companion`].
@@ -739,6 +741,9 @@ impl<'a> ExpressionSink<'a> {
             gaze: Gaze::new(&setup.rig.names),
             blink_idx: BlinkShape::of_rig(&setup.rig.names),
             shrug_idx: rolled_lip_shapes(&setup.rig.names),
+            lips: crate::lips::Lips::new(
+                ["mouthRollLower", "mouthRollUpper", "mouthShrugLower"].map(|n| shape_index(&setup.rig.names, n, None)),
+            ),
             live: None,
             companion: None,
         })
@@ -958,9 +963,11 @@ impl<'a> ExpressionSink<'a> {
 
     /// The weights of a solved frame that are not the solve's alone: the gaze shapes from
     /// the irises (the eyes' turn in the head), then `eyeBlink*` after the gain and the
-    /// iris damping, what a closing lid drives, and the chin raiser with the rolled lower
-    /// lip ([`rolled_lip_shrug`]).
+    /// iris damping, what a closing lid drives, the lips' lost red on their roll shapes
+    /// ([`crate::lips`]), the chin raiser with the rolled lower lip ([`rolled_lip_shrug`])
+    /// and the chin's rise.
     fn conventions(&mut self, out: &mut SolvedFrame, iris: Option<&IrisFrame>) {
+        let chin = self.lips.add_rolls(out.landmarks.as_ref(), &mut out.weights);
         self.gaze.apply(iris, head_of(out.pose.as_ref()), &mut out.weights);
         for b in &self.blink_idx {
             let c = iris.map_or(0.0, |i| match b.side {
@@ -974,6 +981,7 @@ impl<'a> ExpressionSink<'a> {
         if let Some((shrug, roll)) = self.shrug_idx {
             out.weights[shrug] = rolled_lip_shrug(out.weights[shrug], out.weights[roll]);
         }
+        self.lips.add_chin(chin, &mut out.weights);
     }
 
     /// Solves one frame (weights, pose; failures recorded), writing nothing. The gaze, eye and lip
@@ -1211,6 +1219,7 @@ impl ExpressionSink<'_> {
         let irises: Vec<IrisFrame> = faces.iter().filter_map(|t| t.iris).collect();
         self.gaze.rest = GazeRest::towards_straight_ahead(&irises);
         self.gaze.rest_from_clip = self.gaze.rest.is_some();
+        self.lips.rest_from(tracked.iter().map(|(_, l)| l));
         let mut sv = Solving::new(solver);
         // every frame's pose first: the resting head is the clip's median, as the gaze's
         let mut solved: Vec<SolvedFrame> = faces.iter().map(|face| self.solve_frame(&mut sv, face)).collect();

@@ -44,6 +44,7 @@
 pub mod batch;
 pub mod error;
 pub mod expression;
+pub mod lips;
 pub mod live;
 pub mod muscle;
 pub mod net;
