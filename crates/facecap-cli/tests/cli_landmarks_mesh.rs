@@ -309,3 +309,49 @@ fn mesh_front_end_runs_without_dlib_models() {
     let err = String::from_utf8_lossy(&st.stderr);
     assert!(err.contains("model"), "{err}");
 }
+
+/// Images mode on a group photo (dlib's face data set, research-only, shared data): every
+/// face gets its `.pts` and `summary.csv` row, largest first; `landmarks.csv` keeps one row
+/// per image (the largest face).
+#[test]
+fn mesh_landmarks_of_a_group_photo_give_every_face() {
+    let test = "mesh_landmarks_of_a_group_photo_give_every_face";
+    if !models_present(test) {
+        return;
+    }
+    let Some(photo) = facecap_core::paths::shared_data_file(test, "annotated/dlib_faces/2007_007763.jpg") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let st = facecap()
+        .args(["landmarks", "--landmarks", "mesh", "--draw", "--out"])
+        .arg(&out)
+        .arg(&photo)
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let summary = std::fs::read_to_string(out.join("summary.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = summary.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    // seven people, each annotated by dlib's authors (MediaPipe's FaceLandmarker finds none)
+    assert_eq!(rows.len(), 7, "{summary}");
+    let mut areas = Vec::new();
+    for (k, r) in rows.iter().enumerate() {
+        assert_eq!(r[1], k.to_string(), "{summary}");
+        assert_eq!(r[8], format!("2007_007763_{k}.pts"));
+        let pts = facecap_io::formats::pts::read_pts_points(out.join(r[8])).unwrap();
+        assert_eq!(pts.len(), MESH_POINTS);
+        let b: Vec<f64> = r[2..6].iter().map(|v| v.parse().unwrap()).collect();
+        areas.push((b[2] - b[0]) * (b[3] - b[1]));
+    }
+    assert!(areas.windows(2).all(|a| a[0] >= a[1]), "largest first: {areas:?}");
+    let csv = read_mesh_csv(out.join("landmarks.csv")).unwrap();
+    assert_eq!(csv.len(), 1);
+    assert!(csv[0].success);
+    // the CSV row is face 0's
+    let first = facecap_io::formats::pts::read_pts_points(out.join("2007_007763_0.pts")).unwrap();
+    let p = csv[0].points.as_ref().unwrap();
+    assert!((first[1].x - f64::from(p[1][0])).abs() < 1e-3);
+    assert!(out.join("2007_007763_landmarks.png").exists());
+    assert!(String::from_utf8_lossy(&st.stderr).contains("7 face(s)"));
+}
