@@ -469,7 +469,7 @@ pub fn closed_eye_sideways(blink: f64, look: f64) -> f64 {
 }
 
 /// A weight clamped to [0, 1]; non-finite counts as 0.
-fn unit(x: f64) -> f64 {
+pub(crate) fn unit(x: f64) -> f64 {
     if x.is_finite() {
         x.clamp(0.0, 1.0)
     } else {
@@ -604,10 +604,17 @@ fn head_of(pose: Option<&ModelToCamera>) -> Option<(f64, f64)> {
     (pitch.is_finite() && yaw.is_finite()).then_some((pitch, yaw))
 }
 
-/// Iris estimates kept for the running resting gaze, at most.
-const GAZE_SEEN_MAX: usize = 100_000;
-/// Frames between updates of the running resting gaze (and before the first).
-const GAZE_REST_EVERY: usize = 15;
+/// Frames' measures kept for a running rest of live input (the resting gaze, the lips'
+/// rest), at most.
+pub(crate) const RUNNING_REST_SEEN_MAX: usize = 100_000;
+/// Frames between updates of a running rest (and before the first).
+pub(crate) const RUNNING_REST_EVERY: usize = 15;
+
+/// Whether a running rest is due for an update now that `seen` frames have been kept:
+/// every [`RUNNING_REST_EVERY`] frames, and at the first chance while there is none.
+pub(crate) fn running_rest_due(seen: usize, has_rest: bool) -> bool {
+    seen >= RUNNING_REST_EVERY && (seen % RUNNING_REST_EVERY == 0 || !has_rest)
+}
 
 impl Gaze {
     fn new(names: &[String]) -> Self {
@@ -630,14 +637,13 @@ impl Gaze {
             return;
         }
         let Some(iris) = iris else { return };
-        if !self.rest_from_clip && self.seen.len() < GAZE_SEEN_MAX {
+        if !self.rest_from_clip && self.seen.len() < RUNNING_REST_SEEN_MAX {
             // streaming: the running median of the frames so far stands in for the clip's
             self.seen.push(*iris);
             if let Some(h) = head {
                 self.seen_head.push(h);
             }
-            let seen = self.seen.len();
-            if seen >= GAZE_REST_EVERY && (seen % GAZE_REST_EVERY == 0 || self.rest.is_none()) {
+            if running_rest_due(self.seen.len(), self.rest.is_some()) {
                 self.rest = GazeRest::towards_straight_ahead(&self.seen);
                 self.rest_head = median_head(&self.seen_head);
             }

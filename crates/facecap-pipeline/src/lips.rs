@@ -19,6 +19,8 @@
 
 use facecap_core::landmarks::Landmarks68;
 
+use crate::expression::{running_rest_due, unit, RUNNING_REST_SEEN_MAX};
+
 /// Share of a lip's resting red area that, lost, adds 1 to its roll weight's drive, halved:
 /// `mouthRoll* += LIP_ROLL_GAIN * (1 - area / rest_area)`. A lip that shows half its
 /// resting red adds 0.25. Measured flat between 0.3 and 0.7 (docs/expressions.md).
@@ -112,11 +114,6 @@ impl LipMeasures {
     }
 }
 
-/// Measures kept for the running rest of live input, at most.
-const SEEN_MAX: usize = 100_000;
-/// Frames between updates of the running rest (and before the first).
-const REST_EVERY: usize = 15;
-
 /// The rig's `mouthRollLower`, `mouthRollUpper` and `mouthShrugLower` and the subject's
 /// rest; applied per solved frame by the expression sink.
 #[derive(Debug, Clone, Default)]
@@ -151,10 +148,9 @@ impl Lips {
             return 0.0;
         }
         let Some(m) = l.and_then(lip_measures) else { return 0.0 };
-        if !self.rest_from_clip && self.seen.len() < SEEN_MAX {
+        if !self.rest_from_clip && self.seen.len() < RUNNING_REST_SEEN_MAX {
             self.seen.push(m);
-            let n = self.seen.len();
-            if n >= REST_EVERY && (n % REST_EVERY == 0 || self.rest.is_none()) {
+            if running_rest_due(self.seen.len(), self.rest.is_some()) {
                 self.scratch.clone_from(&self.seen);
                 self.rest = LipMeasures::median(&mut self.scratch);
             }
@@ -163,7 +159,7 @@ impl Lips {
         let d = m.drives(&rest);
         for (slot, add) in self.idx[..2].iter().zip(d) {
             if let Some(w) = slot.and_then(|k| weights.get_mut(k)) {
-                *w = clamp_unit(*w + add);
+                *w = unit(*w + add);
             }
         }
         d[2]
@@ -172,16 +168,8 @@ impl Lips {
     /// Adds the chin's drive (from [`Lips::add_rolls`]) to `mouthShrugLower`.
     pub(crate) fn add_chin(&self, chin: f64, weights: &mut [f64]) {
         if let Some(w) = self.idx[2].and_then(|k| weights.get_mut(k)) {
-            *w = clamp_unit(*w + chin);
+            *w = unit(*w + chin);
         }
-    }
-}
-
-fn clamp_unit(x: f64) -> f64 {
-    if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
     }
 }
 
@@ -246,7 +234,7 @@ mod tests {
         let mut lips = Lips::new([Some(0), Some(1), Some(2)]);
         let mut w = [0.1, 0.1, 0.1];
         // live input: nothing added until the running rest exists
-        for _ in 0..REST_EVERY - 1 {
+        for _ in 0..crate::expression::RUNNING_REST_EVERY - 1 {
             assert_eq!(lips.add_rolls(Some(&face(10.0, 8.0, 40.0)), &mut w), 0.0);
         }
         assert_eq!(w, [0.1, 0.1, 0.1]);
