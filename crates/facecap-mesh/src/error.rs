@@ -43,3 +43,15 @@ pub enum Error {
 
 /// `Result` with this crate's [`Error`].
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// The interpreter's errors keep their kind: an unusable model stays [`Error::Model`],
+/// a failed read [`Error::Io`], a misfit input [`Error::InvalidInput`].
+impl From<facecap_tflite::Error> for Error {
+    fn from(e: facecap_tflite::Error) -> Self {
+        match e {
+            facecap_tflite::Error::Io { path, source } => Error::Io { path, source },
+            facecap_tflite::Error::Model { reason } => Error::Model { reason },
+            facecap_tflite::Error::InvalidInput { what } => Error::InvalidInput { what },
+        }
+    }
+}

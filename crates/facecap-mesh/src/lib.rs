@@ -1,8 +1,9 @@
 //! Dense face mesh front end: MediaPipe's face detector (BlazeFace short range) and
 //! 478-point face landmark model (v2, with irises), run in pure Rust.
 //!
-//! * [`tflite`]: a bounds-checked TFLite flatbuffer reader and a small float32
-//!   interpreter for the ten operators these models use.
+//! * [`tflite`]: the `facecap-tflite` crate, re-exported: a bounds-checked TFLite
+//!   flatbuffer reader and a small float32 interpreter for the ten operators these
+//!   models use.
 //! * [`detector`]: BlazeFace decoding (anchors, scores, boxes, weighted NMS).
 //! * [`roi`]: rotated regions and the image-to-tensor warp.
 //! * [`tracker`]: [`MeshTracker`], detection + landmarks + tracking per frame.
@@ -35,8 +36,9 @@ pub mod eyes;
 pub mod ibug68;
 pub mod roi;
 pub mod smoothing;
-pub mod tflite;
 pub mod tracker;
+
+pub use facecap_tflite as tflite;
 
 pub use detector::{Detection, DetectorParams, FaceDetector, Window};
 pub use error::{Error, Result};

@@ -584,7 +584,7 @@ impl Interpreter {
     pub fn run(&self, ws: &mut Workspace) -> Result<()> {
         self.check_ws(ws)?;
         let level = kernels::Level::detect();
-        level.vectorize(Run { it: self, ws });
+        level.vectorize(Steps { steps: &self.steps, ws });
         Ok(())
     }
 }
@@ -682,7 +682,10 @@ impl Interpreter {
         for step in &self.steps {
             let t0 = std::time::Instant::now();
             let level = kernels::Level::detect();
-            level.vectorize(One { step, ws });
+            level.vectorize(Steps {
+                steps: std::slice::from_ref(step),
+                ws,
+            });
             times.push(t0.elapsed().as_secs_f64());
         }
         Ok(times)
@@ -705,32 +708,21 @@ fn step_name(step: &Step) -> &'static str {
     }
 }
 
-struct One<'a> {
-    step: &'a Step,
+/// A run of consecutive steps at one level: the whole plan ([`Interpreter::run`]) or one
+/// step at a time ([`Interpreter::profile_steps`]). One body type for both, so that each
+/// level's kernels are inlined into one body, not two (the kernels dominate the build).
+struct Steps<'a> {
+    steps: &'a [Step],
     ws: &'a mut Workspace,
 }
 
-impl kernels::WithLevel for One<'_> {
+impl kernels::WithLevel for Steps<'_> {
     type Output = ();
 
     #[inline(always)]
     fn with_level(self, level: kernels::Level) {
-        exec(self.step, self.ws, level);
-    }
-}
-
-struct Run<'a> {
-    it: &'a Interpreter,
-    ws: &'a mut Workspace,
-}
-
-impl kernels::WithLevel for Run<'_> {
-    type Output = ();
-
-    #[inline(always)]
-    fn with_level(self, level: kernels::Level) {
-        let Run { it, ws } = self;
-        for step in &it.steps {
+        let Steps { steps, ws } = self;
+        for step in steps {
             exec(step, ws, level);
         }
     }
@@ -825,4 +817,130 @@ fn exec(step: &Step, ws: &mut Workspace, level: kernels::Level) {
         }
     }
     ws.slots[dst_slot] = out;
+}
+
+/// Single kernel calls run through the interpreter's own compiled bodies (the plan's
+/// per-level loop of [`Interpreter::run`]) at a chosen [`kernels::Level`], for tests and
+/// benchmarks that compare levels or check a kernel against a reference.
+///
+/// They take the arguments of the [`kernels`] functions of the same names and give the
+/// same results, but run the code the interpreter runs, with the level's target
+/// features on; calling the inlined kernels directly from another crate would compile
+/// them again there, outside those features. Each call copies its inputs into a
+/// one-step workspace, so it allocates.
+pub mod single {
+    use super::{Fused, FusedPost, Step, Steps, Workspace};
+    use crate::kernels::{Epilogue, Geom, Level, Packed, Post};
+    use crate::model::{Padding, Window};
+
+    /// The epilogue as the plan holds it, its residual (if any) in slot 2.
+    fn fused(ep: &Epilogue<'_>) -> Fused {
+        Fused {
+            act: ep.act,
+            residual: ep.residual.map(|_| 2),
+            post: match ep.post {
+                Post::None => FusedPost::None,
+                Post::Relu => FusedPost::Relu,
+                Post::Prelu(alpha) => FusedPost::Prelu(alpha.to_vec()),
+            },
+        }
+    }
+
+    /// Runs `step` (reading slot 0, the residual in slot 2, writing slot 1) and copies
+    /// slot 1 into `out`.
+    fn run(level: Level, step: Step, input: &[f32], ep: &Epilogue<'_>, col: usize, out: &mut [f32]) {
+        let mut ws = Workspace {
+            id: 0,
+            slots: vec![
+                input.to_vec(),
+                vec![0.0; out.len()],
+                ep.residual.map(<[f32]>::to_vec).unwrap_or_default(),
+            ],
+            col: vec![0.0; col],
+        };
+        level.vectorize(Steps {
+            steps: std::slice::from_ref(&step),
+            ws: &mut ws,
+        });
+        out.copy_from_slice(&ws.slots[1]);
+    }
+
+    /// [`kernels::gemm_at`](crate::kernels::gemm_at): `a` is `rows x w.k`, `out` is
+    /// `rows x w.n` (run as a 1x1 convolution).
+    ///
+    /// # Panics
+    /// When a length does not fit (`a`, `out` or the residual shorter than the shapes
+    /// say), as the kernel does.
+    pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+        let win = Window {
+            kh: 1,
+            kw: 1,
+            sh: 1,
+            sw: 1,
+            dh: 1,
+            dw: 1,
+            padding: Padding::Valid,
+        };
+        // A 1x1 window fits every input with at least one row and one channel; with none
+        // there is nothing to compute.
+        let Some(g) = Geom::new(rows, 1, w.k, win) else {
+            return;
+        };
+        let step = Step::Conv {
+            src: 0,
+            dst: 1,
+            g,
+            w: w.clone(),
+            fused: fused(ep),
+        };
+        run(level, step, a, ep, 0, out)
+    }
+
+    /// [`kernels::conv_window`](crate::kernels::conv_window); `col` gives the size of
+    /// the scratch (its contents are not used).
+    ///
+    /// # Panics
+    /// As [`gemm_at`].
+    pub fn conv_window(
+        level: Level,
+        input: &[f32],
+        g: &Geom,
+        w: &Packed,
+        ep: &Epilogue<'_>,
+        col: &mut [f32],
+        out: &mut [f32],
+    ) {
+        let step = Step::Conv {
+            src: 0,
+            dst: 1,
+            g: *g,
+            w: w.clone(),
+            fused: fused(ep),
+        };
+        run(level, step, input, ep, col.len(), out)
+    }
+
+    /// [`kernels::depthwise_at`](crate::kernels::depthwise_at).
+    ///
+    /// # Panics
+    /// As [`gemm_at`].
+    pub fn depthwise_at(
+        level: Level,
+        input: &[f32],
+        g: &Geom,
+        filter: &[f32],
+        bias: &[f32],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+    ) {
+        let step = Step::Depthwise {
+            src: 0,
+            dst: 1,
+            g: *g,
+            filter: filter.to_vec(),
+            bias: bias.to_vec(),
+            fused: fused(ep),
+        };
+        run(level, step, input, ep, 0, out)
+    }
 }

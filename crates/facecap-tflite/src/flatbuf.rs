@@ -22,21 +22,28 @@ fn bad(reason: impl Into<String>) -> Error {
 
 /// A byte buffer with checked little-endian reads.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Buf<'a> {
+pub struct Buf<'a> {
     bytes: &'a [u8],
 }
 
 impl<'a> Buf<'a> {
-    pub(crate) fn new(bytes: &'a [u8]) -> Self {
+    /// The buffer over `bytes`.
+    pub fn new(bytes: &'a [u8]) -> Self {
         Buf { bytes }
     }
 
-    pub(crate) fn len(&self) -> usize {
+    /// Length in bytes.
+    pub fn len(&self) -> usize {
         self.bytes.len()
     }
 
+    /// Whether the buffer holds no bytes.
+    pub fn is_empty(&self) -> bool {
+        self.bytes.is_empty()
+    }
+
     /// `n` bytes at `pos`, or an error naming `what`.
-    pub(crate) fn slice(&self, pos: usize, n: usize, what: &str) -> Result<&'a [u8]> {
+    pub fn slice(&self, pos: usize, n: usize, what: &str) -> Result<&'a [u8]> {
         let end = pos
             .checked_add(n)
             .ok_or_else(|| bad(format!("{what}: size overflow at offset {pos}")))?;
@@ -55,19 +62,19 @@ impl<'a> Buf<'a> {
         Ok(a)
     }
 
-    pub(crate) fn u8_at(&self, pos: usize, what: &str) -> Result<u8> {
+    pub fn u8_at(&self, pos: usize, what: &str) -> Result<u8> {
         Ok(self.array::<1>(pos, what)?[0])
     }
-    pub(crate) fn u16_at(&self, pos: usize, what: &str) -> Result<u16> {
+    pub fn u16_at(&self, pos: usize, what: &str) -> Result<u16> {
         Ok(u16::from_le_bytes(self.array(pos, what)?))
     }
-    pub(crate) fn u32_at(&self, pos: usize, what: &str) -> Result<u32> {
+    pub fn u32_at(&self, pos: usize, what: &str) -> Result<u32> {
         Ok(u32::from_le_bytes(self.array(pos, what)?))
     }
-    pub(crate) fn i32_at(&self, pos: usize, what: &str) -> Result<i32> {
+    pub fn i32_at(&self, pos: usize, what: &str) -> Result<i32> {
         Ok(i32::from_le_bytes(self.array(pos, what)?))
     }
-    pub(crate) fn u64_at(&self, pos: usize, what: &str) -> Result<u64> {
+    pub fn u64_at(&self, pos: usize, what: &str) -> Result<u64> {
         Ok(u64::from_le_bytes(self.array(pos, what)?))
     }
 
@@ -87,7 +94,7 @@ impl<'a> Buf<'a> {
     }
 
     /// The root table.
-    pub(crate) fn root(&self) -> Result<Table<'a>> {
+    pub fn root(&self) -> Result<Table<'a>> {
         let pos = self.follow(0, "root table offset")?;
         Table::at(*self, pos, "root table")
     }
@@ -95,7 +102,7 @@ impl<'a> Buf<'a> {
 
 /// A FlatBuffers table.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Table<'a> {
+pub struct Table<'a> {
     buf: Buf<'a>,
     pos: usize,
     vtable: usize,
@@ -138,25 +145,25 @@ impl<'a> Table<'a> {
         Ok(Some(self.pos + off))
     }
 
-    pub(crate) fn u8_or(&self, id: usize, default: u8, what: &str) -> Result<u8> {
+    pub fn u8_or(&self, id: usize, default: u8, what: &str) -> Result<u8> {
         match self.field(id, what)? {
             Some(p) => self.buf.u8_at(p, what),
             None => Ok(default),
         }
     }
-    pub(crate) fn i32_or(&self, id: usize, default: i32, what: &str) -> Result<i32> {
+    pub fn i32_or(&self, id: usize, default: i32, what: &str) -> Result<i32> {
         match self.field(id, what)? {
             Some(p) => self.buf.i32_at(p, what),
             None => Ok(default),
         }
     }
-    pub(crate) fn u32_or(&self, id: usize, default: u32, what: &str) -> Result<u32> {
+    pub fn u32_or(&self, id: usize, default: u32, what: &str) -> Result<u32> {
         match self.field(id, what)? {
             Some(p) => self.buf.u32_at(p, what),
             None => Ok(default),
         }
     }
-    pub(crate) fn u64_or(&self, id: usize, default: u64, what: &str) -> Result<u64> {
+    pub fn u64_or(&self, id: usize, default: u64, what: &str) -> Result<u64> {
         match self.field(id, what)? {
             Some(p) => self.buf.u64_at(p, what),
             None => Ok(default),
@@ -164,7 +171,7 @@ impl<'a> Table<'a> {
     }
 
     /// A sub-table field.
-    pub(crate) fn table(&self, id: usize, what: &str) -> Result<Option<Table<'a>>> {
+    pub fn table(&self, id: usize, what: &str) -> Result<Option<Table<'a>>> {
         match self.field(id, what)? {
             Some(p) => {
                 let t = self.buf.follow(p, what)?;
@@ -175,7 +182,7 @@ impl<'a> Table<'a> {
     }
 
     /// A vector field whose elements are `elem_size` bytes each.
-    pub(crate) fn vector(&self, id: usize, elem_size: usize, what: &str) -> Result<Option<Vector<'a>>> {
+    pub fn vector(&self, id: usize, elem_size: usize, what: &str) -> Result<Option<Vector<'a>>> {
         match self.field(id, what)? {
             Some(p) => {
                 let v = self.buf.follow(p, what)?;
@@ -196,14 +203,14 @@ impl<'a> Table<'a> {
     }
 
     /// A string field (lossy UTF-8).
-    pub(crate) fn string(&self, id: usize, what: &str) -> Result<Option<String>> {
+    pub fn string(&self, id: usize, what: &str) -> Result<Option<String>> {
         Ok(self
             .vector(id, 1, what)?
             .map(|v| String::from_utf8_lossy(v.bytes()).into_owned()))
     }
 
     /// An `[int]` vector field.
-    pub(crate) fn i32_vec(&self, id: usize, what: &str) -> Result<Vec<i32>> {
+    pub fn i32_vec(&self, id: usize, what: &str) -> Result<Vec<i32>> {
         match self.vector(id, 4, what)? {
             Some(v) => (0..v.len()).map(|i| v.i32_at(i, what)).collect(),
             None => Ok(Vec::new()),
@@ -213,7 +220,7 @@ impl<'a> Table<'a> {
 
 /// A FlatBuffers vector whose byte extent has been checked.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Vector<'a> {
+pub struct Vector<'a> {
     buf: Buf<'a>,
     start: usize,
     len: usize,
@@ -221,87 +228,32 @@ pub(crate) struct Vector<'a> {
 }
 
 impl<'a> Vector<'a> {
-    pub(crate) fn len(&self) -> usize {
+    /// Number of elements.
+    pub fn len(&self) -> usize {
         self.len
     }
+
+    /// Whether the vector has no elements.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
     /// The raw element bytes.
-    pub(crate) fn bytes(&self) -> &'a [u8] {
+    pub fn bytes(&self) -> &'a [u8] {
         // Checked in `Table::vector`; `get` keeps this panic-free regardless.
         self.buf
             .bytes
             .get(self.start..self.start + self.len * self.elem_size)
             .unwrap_or(&[])
     }
-    pub(crate) fn i32_at(&self, i: usize, what: &str) -> Result<i32> {
+    pub fn i32_at(&self, i: usize, what: &str) -> Result<i32> {
         self.buf.i32_at(self.start + 4 * i, what)
     }
     /// Element `i` of a vector of tables.
-    pub(crate) fn table_at(&self, i: usize, what: &str) -> Result<Table<'a>> {
+    pub fn table_at(&self, i: usize, what: &str) -> Result<Table<'a>> {
         if i >= self.len {
             return Err(bad(format!("{what}: index {i} out of {}", self.len)));
         }
         let t = self.buf.follow(self.start + 4 * i, what)?;
         Table::at(self.buf, t, what)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A hand-built buffer: root table with field 0 = u32 7, field 1 = vector [1, -2].
-    fn sample() -> Vec<u8> {
-        let mut b = vec![0u8; 0];
-        // 0: root offset -> table at 16
-        b.extend_from_slice(&16u32.to_le_bytes());
-        // 4: vtable: len 8, table len 12, field0 at +4, field1 at +8
-        b.extend_from_slice(&8u16.to_le_bytes());
-        b.extend_from_slice(&12u16.to_le_bytes());
-        b.extend_from_slice(&4u16.to_le_bytes());
-        b.extend_from_slice(&8u16.to_le_bytes());
-        b.extend_from_slice(&[0u8; 4]); // 12..16 padding
-                                        // 16: table: soffset = 16 - 4 = 12
-        b.extend_from_slice(&12i32.to_le_bytes());
-        b.extend_from_slice(&7u32.to_le_bytes()); // 20: field0
-        b.extend_from_slice(&4u32.to_le_bytes()); // 24: field1 -> 28
-        b.extend_from_slice(&2u32.to_le_bytes()); // 28: len
-        b.extend_from_slice(&1i32.to_le_bytes());
-        b.extend_from_slice(&(-2i32).to_le_bytes());
-        b
-    }
-
-    #[test]
-    fn reads_fields_and_defaults() -> Result<()> {
-        let b = sample();
-        let t = Buf::new(&b).root()?;
-        assert_eq!(t.u32_or(0, 0, "f0")?, 7);
-        assert_eq!(t.i32_vec(1, "f1")?, vec![1, -2]);
-        assert_eq!(t.i32_or(5, 42, "absent")?, 42);
-        assert!(t.table(7, "absent")?.is_none());
-        Ok(())
-    }
-
-    #[test]
-    fn every_truncation_is_an_error_not_a_panic() {
-        let b = sample();
-        for n in 0..b.len() {
-            let r = Buf::new(&b[..n]).root().and_then(|t| {
-                t.u32_or(0, 0, "f0")?;
-                t.i32_vec(1, "f1")
-            });
-            assert!(r.is_err(), "truncation to {n} bytes was accepted");
-        }
-    }
-
-    #[test]
-    fn garbled_offsets_are_errors() {
-        let mut b = sample();
-        b[24..28].copy_from_slice(&u32::MAX.to_le_bytes());
-        let t = Buf::new(&b).root().ok();
-        assert!(t.map(|t| t.i32_vec(1, "f1").is_err()).unwrap_or(true));
-        let mut b = sample();
-        b[28..32].copy_from_slice(&0x4000_0000u32.to_le_bytes()); // huge vector length
-        let t = Buf::new(&b).root().ok();
-        assert!(t.map(|t| t.i32_vec(1, "f1").is_err()).unwrap_or(true));
     }
 }
