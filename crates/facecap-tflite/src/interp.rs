@@ -710,7 +710,7 @@ fn step_name(step: &Step) -> &'static str {
 
 /// A run of consecutive steps at one level: the whole plan ([`Interpreter::run`]) or one
 /// step at a time ([`Interpreter::profile_steps`]). One body type for both, so that each
-/// level's kernels are inlined into one body, not two (the kernels dominate the build).
+/// level's inlined kernels are compiled into one body, not two (they dominate the build).
 struct Steps<'a> {
     steps: &'a [Step],
     ws: &'a mut Workspace,

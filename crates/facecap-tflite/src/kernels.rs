@@ -251,8 +251,9 @@ fn store<const W: usize>(
 /// The AVX2/FMA register block: `MR_V3 x 16` accumulators in twelve `f32x8` registers,
 /// written with explicit vector types so they stay in registers across the `k` loop
 /// (the array-of-floats version of [`micro`] spills them to the stack). The AVX2 level
-/// runs these, inlined into the interpreter's body; the AVX-512 level runs [`x86`]
-/// (the same blocks written over the register width, compiled once per kernel).
+/// runs these, inlined into the interpreter's body, except the GEMM of the im2col
+/// chunks ([`v3::gemm`], one out-of-line copy); the AVX-512 level runs [`x86`] (the same
+/// blocks written over the register width, compiled once per kernel).
 #[cfg(target_arch = "x86_64")]
 mod v3 {
     use super::{Activation, Epilogue, Packed, Post, MAX_NR};
@@ -807,9 +808,45 @@ mod v3 {
         }
     }
 
+    /// [`gemm_inline`] compiled once, out of line inside the AVX2/FMA features, for the
+    /// im2col chunks ([`super::conv_rows`]: the border rows of [`conv_direct`], dilated
+    /// windows). Inlined there, each of those call sites held its own copy of the
+    /// register blocks, which made this crate the slowest of the workspace to compile;
+    /// the 1x1 layers, most of the model's work, keep the inlined copy (calling this one
+    /// for them made the landmark model ~10 % slower).
+    #[inline(never)]
+    pub fn gemm(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+        struct Op<'a, 'b> {
+            simd: V3,
+            a: &'a [f32],
+            rows: usize,
+            w: &'a Packed,
+            ep: &'a Epilogue<'b>,
+            out: &'a mut [f32],
+        }
+        impl pulp::WithSimd for Op<'_, '_> {
+            type Output = ();
+            #[inline(always)]
+            fn with_simd<S: pulp::Simd>(self, _simd: S) {
+                gemm_inline(self.simd, self.a, self.rows, self.w, self.ep, self.out)
+            }
+        }
+        pulp::Simd::vectorize(
+            simd,
+            Op {
+                simd,
+                a,
+                rows,
+                w,
+                ep,
+                out,
+            },
+        )
+    }
+
     /// [`super::gemm`] with the AVX2/FMA blocks: `8 x 8`, `6 x 16` or `3 x 24` by panel.
     #[inline(always)]
-    pub fn gemm(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+    pub fn gemm_inline(simd: V3, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
         let (k, n) = (w.k, w.n);
         let mut p0 = 0;
         while p0 < rows {
@@ -997,16 +1034,35 @@ pub fn depthwise_at(
     }
 }
 
-/// [`gemm`] at a given SIMD level.
+/// [`gemm`] at a given SIMD level (the AVX2 blocks inlined at the call site).
 #[inline(always)]
 pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
     match level {
         #[cfg(target_arch = "x86_64")]
         Level::V4(simd) => x86::gemm_at(simd, a, rows, w, ep, out),
         #[cfg(target_arch = "x86_64")]
-        Level::V3(simd) => v3::gemm(simd, a, rows, w, ep, out),
-        Level::Portable => gemm(a, rows, w, ep, out),
+        Level::V3(simd) => v3::gemm_inline(simd, a, rows, w, ep, out),
+        Level::Portable => gemm_portable(a, rows, w, ep, out),
     }
+}
+
+/// [`gemm_at`] calling every level's one out-of-line copy (for the im2col chunks).
+#[inline(always)]
+fn gemm_at_shared(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+    match level {
+        #[cfg(target_arch = "x86_64")]
+        Level::V4(simd) => x86::gemm_at(simd, a, rows, w, ep, out),
+        #[cfg(target_arch = "x86_64")]
+        Level::V3(simd) => v3::gemm(simd, a, rows, w, ep, out),
+        Level::Portable => gemm_portable(a, rows, w, ep, out),
+    }
+}
+
+/// [`gemm`] compiled once, out of line (the portable level needs no target features):
+/// one copy instead of one per call site (1x1 layers and the im2col chunks).
+#[inline(never)]
+fn gemm_portable(a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
+    gemm(a, rows, w, ep, out)
 }
 
 /// A convolution through im2col, chunk by chunk ([`im2col_chunk_rows`] output pixels):
@@ -1052,7 +1108,7 @@ fn conv_rows(
             residual: ep.residual.map(|r| &r[p * n..]),
             ..*ep
         };
-        gemm_at(level, c, q - p, w, &ep, &mut out[p * n..q * n]);
+        gemm_at_shared(level, c, q - p, w, &ep, &mut out[p * n..q * n]);
         p = q;
     }
 }
