@@ -112,6 +112,50 @@ fn conv_fast_matches_reference_on_random_shapes() {
     }
 }
 
+/// The convolution `g` with a random residual and PReLU in its epilogue, at every level,
+/// against the reference (`what` names the case in a failure).
+fn check_residual_prelu(
+    rng: &mut ChaCha8Rng,
+    what: &str,
+    g: &Geom,
+    input: &[f32],
+    filter: &[f32],
+    bias: &[f32],
+    oc: usize,
+) {
+    let res = rnd(rng, g.oh * g.ow * oc);
+    let alpha = rnd(rng, oc);
+    let conv = reference::conv(input, g, filter, Some(bias), oc, Activation::None);
+    let want: Vec<f32> = conv
+        .iter()
+        .zip(&res)
+        .enumerate()
+        .map(|(i, (&c, &r))| {
+            let v = c + r;
+            if v >= 0.0 {
+                v
+            } else {
+                v * alpha[i % oc]
+            }
+        })
+        .collect();
+    let kk = g.win.kh * g.win.kw * g.ic;
+    let packed = Packed::new(filter, Some(bias), oc, kk);
+    let ep = Epilogue {
+        act: Activation::None,
+        residual: Some(&res),
+        post: Post::Prelu(&alpha),
+    };
+    let rows = (g.oh * g.ow).min(im2col_chunk_rows(kk));
+    let mut scratch = vec![0.0; rows * kk];
+    for level in Level::all() {
+        let mut got = vec![0.0; g.oh * g.ow * oc];
+        conv_window(level, input, g, &packed, &ep, &mut scratch, &mut got);
+        let d = max_diff(&got, &want);
+        assert!(d < 1e-4, "{what} {level:?}: max difference {d}");
+    }
+}
+
 /// The direct (no im2col) convolution on the shapes it is used for and around them:
 /// 3x3/2 on 3 channels (the landmark model's first layer), 2x2/2, 5x5/2, stride 1,
 /// odd and even sizes (padding on one or both sides), output channel counts that
@@ -128,39 +172,8 @@ fn conv_window_matches_reference_at_borders() {
         let Some((g, input, filter, bias)) = random_conv(&mut rng, ih, iw, ic, oc, k, s, padding) else {
             continue;
         };
-        let res = rnd(&mut rng, g.oh * g.ow * oc);
-        let alpha = rnd(&mut rng, oc);
-        let conv = reference::conv(&input, &g, &filter, Some(&bias), oc, Activation::None);
-        let want: Vec<f32> = conv
-            .iter()
-            .zip(&res)
-            .enumerate()
-            .map(|(i, (&c, &r))| {
-                let v = c + r;
-                if v >= 0.0 {
-                    v
-                } else {
-                    v * alpha[i % oc]
-                }
-            })
-            .collect();
-        let packed = Packed::new(&filter, Some(&bias), oc, k * k * ic);
-        let ep = Epilogue {
-            act: Activation::None,
-            residual: Some(&res),
-            post: Post::Prelu(&alpha),
-        };
-        let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
-        let mut scratch = vec![0.0; rows * k * k * ic];
-        for level in Level::all() {
-            let mut got = vec![0.0; g.oh * g.ow * oc];
-            conv_window(level, &input, &g, &packed, &ep, &mut scratch, &mut got);
-            let d = max_diff(&got, &want);
-            assert!(
-                d < 1e-4,
-                "case {case} {ih}x{iw}x{ic} -> {oc} k{k}/{s} {level:?}: max difference {d}"
-            );
-        }
+        let what = format!("case {case} {ih}x{iw}x{ic} -> {oc} k{k}/{s}");
+        check_residual_prelu(&mut rng, &what, &g, &input, &filter, &bias, oc);
     }
 }
 
@@ -190,39 +203,8 @@ fn dilated_conv_matches_reference_at_every_level() {
             rnd(&mut rng, oc * k * k * ic),
             rnd(&mut rng, oc),
         );
-        let res = rnd(&mut rng, g.oh * g.ow * oc);
-        let alpha = rnd(&mut rng, oc);
-        let conv = reference::conv(&input, &g, &filter, Some(&bias), oc, Activation::None);
-        let want: Vec<f32> = conv
-            .iter()
-            .zip(&res)
-            .enumerate()
-            .map(|(i, (&c, &r))| {
-                let v = c + r;
-                if v >= 0.0 {
-                    v
-                } else {
-                    v * alpha[i % oc]
-                }
-            })
-            .collect();
-        let packed = Packed::new(&filter, Some(&bias), oc, k * k * ic);
-        let ep = Epilogue {
-            act: Activation::None,
-            residual: Some(&res),
-            post: Post::Prelu(&alpha),
-        };
-        let rows = (g.oh * g.ow).min(im2col_chunk_rows(k * k * ic));
-        let mut scratch = vec![0.0; rows * k * k * ic];
-        for level in Level::all() {
-            let mut got = vec![0.0; g.oh * g.ow * oc];
-            conv_window(level, &input, &g, &packed, &ep, &mut scratch, &mut got);
-            let diff = max_diff(&got, &want);
-            assert!(
-                diff < 1e-4,
-                "case {case} {ih}x{iw}x{ic} -> {oc} k{k}/{s} dilation {dil} {level:?}: max difference {diff}"
-            );
-        }
+        let what = format!("case {case} {ih}x{iw}x{ic} -> {oc} k{k}/{s} dilation {dil}");
+        check_residual_prelu(&mut rng, &what, &g, &input, &filter, &bias, oc);
     }
 }
 
