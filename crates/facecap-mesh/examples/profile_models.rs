@@ -3,7 +3,9 @@
 //!     cargo run --release -p facecap-mesh --example profile_models [reps] [--layers]
 //!
 //! `--layers` also prints every step of the plan with its shapes, time and MAC rate;
-//! `--model PATH` profiles that TFLite file instead of the two cached models.
+//! `--model PATH` profiles that TFLite file instead of the two cached models;
+//! `--run-only` skips the per-operator pass, so that the whole process times `reps`
+//! plain runs of each model (for pairing against another engine).
 use facecap_mesh::tflite::Interpreter;
 
 /// CPU time of this thread in seconds (Linux `/proc/thread-self/schedstat`), so that
@@ -16,6 +18,7 @@ fn cpu_seconds() -> Option<f64> {
 fn main() -> facecap_mesh::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let layers = args.iter().any(|a| a == "--layers");
+    let run_only = args.iter().any(|a| a == "--run-only");
     let reps: usize = args.iter().find_map(|a| a.parse().ok()).unwrap_or(50);
     let given = args.iter().position(|a| a == "--model").and_then(|i| args.get(i + 1));
     let paths: Vec<(String, std::path::PathBuf)> = match given {
@@ -35,7 +38,7 @@ fn main() -> facecap_mesh::Result<()> {
             *v = ((i * 7919) % 251) as f32 / 251.0;
         }
         let mut total: Vec<(&str, f64)> = Vec::new();
-        for _ in 0..reps {
+        for _ in 0..if run_only { 0 } else { reps } {
             for (n, t) in it.profile(&mut ws)? {
                 match total.iter_mut().find(|(m, _)| *m == n) {
                     Some(a) => a.1 += t,

@@ -256,7 +256,7 @@ fn store<const W: usize>(
 /// blocks written over the register width, compiled once per kernel).
 #[cfg(target_arch = "x86_64")]
 mod v3 {
-    use super::{Activation, Epilogue, Packed, Post, MAX_NR};
+    use super::{Activation, Epilogue, Packed, Panel, Post, MAX_NR};
     use pulp::bytemuck;
     use pulp::f32x8;
     use pulp::x86::V3;
@@ -777,7 +777,21 @@ mod v3 {
             if lo > 0 {
                 super::conv_rows(level, input, g, w, ep, col, out, p_row, p_row + lo);
             }
-            for pn in &w.panels {
+            let mut panels: &[Panel] = &w.panels;
+            if hi - lo == 1 {
+                // One pixel (the landmark model's heads: a 2x2 window over a 2x2 input):
+                // four 16-wide panels at a time.
+                while let [p0, p1, p2, p3, rest @ ..] = panels {
+                    let four = [*p0, *p1, *p2, *p3];
+                    if four.iter().any(|p| p.width != 16) {
+                        break;
+                    }
+                    let base = (iy0 * g.iw + lo * sw - g.pl) * c;
+                    gemv4(simd, input, base, rstride, seg, w, &four, ep, out, (p_row + lo) * n);
+                    panels = rest;
+                }
+            }
+            for pn in panels {
                 let (panel, bias) = w.panel(pn);
                 let v = pn.width / 8;
                 let mr = block_rows(v);
@@ -805,6 +819,51 @@ mod v3 {
             if hi < g.ow {
                 super::conv_rows(level, input, g, w, ep, col, out, p_row + hi, p_row + g.ow);
             }
+        }
+    }
+
+    /// One output pixel (flat output index `at`, its patch row `ky` at
+    /// `input[base + ky * rstride..]`, `seg = (kh, KW * Cin)`) against four 16-wide
+    /// panels at once: eight accumulators, where one panel alone has two, each waiting
+    /// on the latency of its last fused multiply-add. Each output is summed in
+    /// [`micro_direct`]'s order, so the bits are the same.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn gemv4(
+        simd: V3,
+        input: &[f32],
+        base: usize,
+        rstride: usize,
+        (kh, seg): (usize, usize),
+        w: &Packed,
+        four: &[Panel; 4],
+        ep: &Epilogue<'_>,
+        out: &mut [f32],
+        at: usize,
+    ) {
+        let len = seg * 16;
+        let mut acc = [[simd.splat_f32x8(0.0); 2]; 4];
+        let mut panels: [&[f32]; 4] = [&[]; 4];
+        for q in 0..4 {
+            let (panel, bias) = w.panel(&four[q]);
+            acc[q] = load_n::<2>(simd, bias);
+            panels[q] = &panel[..kh * len];
+        }
+        for ky in 0..kh {
+            let row = &input[base + ky * rstride..base + ky * rstride + seg];
+            for (kk, &xv) in row.iter().enumerate() {
+                let x = simd.splat_f32x8(xv);
+                let o = ky * len + kk * 16;
+                for q in 0..4 {
+                    let wv = load_n::<2>(simd, &panels[q][o..o + 16]);
+                    acc[q][0] = simd.mul_add_f32x8(x, wv[0], acc[q][0]);
+                    acc[q][1] = simd.mul_add_f32x8(x, wv[1], acc[q][1]);
+                }
+            }
+        }
+        for q in 0..4 {
+            let (c0, cols) = (four[q].c0, four[q].cols);
+            finish::<1, 2>(simd, &[acc[q]], ep, &mut out[at + c0..], at + c0, w.n, c0, cols);
         }
     }
 
@@ -1046,18 +1105,6 @@ pub fn gemm_at(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'
     }
 }
 
-/// [`gemm_at`] calling every level's one out-of-line copy (for the im2col chunks).
-#[inline(always)]
-fn gemm_at_shared(level: Level, a: &[f32], rows: usize, w: &Packed, ep: &Epilogue<'_>, out: &mut [f32]) {
-    match level {
-        #[cfg(target_arch = "x86_64")]
-        Level::V4(simd) => x86::gemm_at(simd, a, rows, w, ep, out),
-        #[cfg(target_arch = "x86_64")]
-        Level::V3(simd) => v3::gemm(simd, a, rows, w, ep, out),
-        Level::Portable => gemm_portable(a, rows, w, ep, out),
-    }
-}
-
 /// [`gemm`] compiled once, out of line (the portable level needs no target features):
 /// one copy instead of one per call site (1x1 layers and the im2col chunks).
 #[inline(never)]
@@ -1108,7 +1155,13 @@ fn conv_rows(
             residual: ep.residual.map(|r| &r[p * n..]),
             ..*ep
         };
-        gemm_at_shared(level, c, q - p, w, &ep, &mut out[p * n..q * n]);
+        let o = &mut out[p * n..q * n];
+        match level {
+            // The AVX2 blocks' one out-of-line copy (every other level's GEMM is one).
+            #[cfg(target_arch = "x86_64")]
+            Level::V3(simd) => v3::gemm(simd, c, q - p, w, &ep, o),
+            _ => gemm_at(level, c, q - p, w, &ep, o),
+        }
         p = q;
     }
 }
@@ -1407,6 +1460,17 @@ const POOL_TAPS: usize = 8;
 #[inline(always)]
 pub fn max_pool(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
     let c = g.ic;
+    let w = &g.win;
+    let fits = |o: usize, i: usize| 2 * o <= i;
+    if c >= 8
+        && (w.kh, w.kw, w.sh, w.sw, w.dh, w.dw) == (2, 2, 2, 2, 1, 1)
+        && (g.pt, g.pl) == (0, 0)
+        && fits(g.oh, g.ih)
+        && fits(g.ow, g.iw)
+    {
+        max_pool2x2(input, g, act, out);
+        return;
+    }
     if c >= 8 && g.win.kh <= POOL_TAPS && g.win.kw <= POOL_TAPS {
         max_pool8(input, g, act, out);
         return;
@@ -1481,6 +1545,83 @@ fn max_pool8(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
     }
 }
 
+/// Eight floats of `s` from `at` (a fixed-size copy: registers, no call).
+#[inline(always)]
+fn load8(s: &[f32], at: usize) -> [f32; 8] {
+    let mut x = [0.0f32; 8];
+    x.copy_from_slice(&s[at..at + 8]);
+    x
+}
+
+/// Stores eight floats at `s[at..]`.
+#[inline(always)]
+fn store8(s: &mut [f32], at: usize, x: [f32; 8]) {
+    if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut s[at..at + 8]) {
+        *dst = x;
+    }
+}
+
+/// Writes `src` (zeros when `None`) over `dst`, 8 floats at a time and the rest one by
+/// one.
+#[inline(always)]
+fn fill8(dst: &mut [f32], src: Option<&[f32]>) {
+    let n8 = dst.len() / 8 * 8;
+    match src {
+        Some(s) => {
+            for j in (0..n8).step_by(8) {
+                store8(dst, j, load8(s, j));
+            }
+            for j in n8..dst.len() {
+                dst[j] = s[j];
+            }
+        }
+        None => {
+            for j in (0..n8).step_by(8) {
+                store8(dst, j, [0.0; 8]);
+            }
+            for v in &mut dst[n8..] {
+                *v = 0.0;
+            }
+        }
+    }
+}
+
+/// [`max_pool`] for the 2x2 stride-2 windows that lie inside the input (every pooling
+/// of both models), `c >= 8`: the four taps at fixed offsets, 8 channels at a time (the
+/// last block overlapping the one before when `c % 8 != 0`), folded in [`max_pool8`]'s
+/// order (top left, top right, bottom left, bottom right) from `-inf`, so the bits are
+/// the same.
+#[inline(always)]
+fn max_pool2x2(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
+    let c = g.ic;
+    let row = g.iw * c;
+    for oy in 0..g.oh {
+        let top = &input[2 * oy * row..(2 * oy + 1) * row];
+        let bot = &input[(2 * oy + 1) * row..(2 * oy + 2) * row];
+        let o_row = &mut out[oy * g.ow * c..(oy + 1) * g.ow * c];
+        for ox in 0..g.ow {
+            let (i, o) = (2 * ox * c, ox * c);
+            for cb in (0..c).step_by(8).map(|cb| cb.min(c - 8)) {
+                let mut acc = [f32::NEG_INFINITY; 8];
+                for x in [
+                    load8(top, i + cb),
+                    load8(top, i + c + cb),
+                    load8(bot, i + cb),
+                    load8(bot, i + c + cb),
+                ] {
+                    for (a, v) in acc.iter_mut().zip(x) {
+                        *a = a.max(v);
+                    }
+                }
+                for a in acc.iter_mut() {
+                    *a = act.apply(*a);
+                }
+                store8(o_row, o + cb, acc);
+            }
+        }
+    }
+}
+
 /// Zero padding of a `[n, h, w, c]` tensor; `pads[axis] = [before, after]`.
 #[inline(always)]
 pub fn pad4(input: &[f32], shape: [usize; 4], pads: [[usize; 2]; 4], out: &mut [f32]) {
@@ -1488,6 +1629,20 @@ pub fn pad4(input: &[f32], shape: [usize; 4], pads: [[usize; 2]; 4], out: &mut [
     let oh = h + pads[1][0] + pads[1][1];
     let ow = w + pads[2][0] + pads[2][1];
     let oc = c + pads[3][0] + pads[3][1];
+    if pads[..3] == [[0, 0]; 3] && c > 0 {
+        // Channels only (the residual shortcuts of both models): each pixel's values and
+        // zeros written in place, 8 at a time, with no pass that zeroes the whole output
+        // first and no copy call per pixel.
+        let before = pads[3][0];
+        for (src, dst) in input.chunks_exact(c).zip(out.chunks_exact_mut(oc)).take(n * h * w) {
+            let (head, rest) = dst.split_at_mut(before);
+            let (mid, tail) = rest.split_at_mut(c);
+            fill8(head, None);
+            fill8(mid, Some(src));
+            fill8(tail, None);
+        }
+        return;
+    }
     out.fill(0.0);
     for b in 0..n {
         for y in 0..h {

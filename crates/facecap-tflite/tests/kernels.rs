@@ -349,6 +349,64 @@ fn every_level_gives_the_same_bits() {
     }
 }
 
+/// Convolutions whose output rows hold one pixel (the landmark model's heads: a 2x2
+/// window over a 2x2 input, up to 1434 outputs), which AVX2 runs four panels at a time:
+/// the portable bits at every level, and the reference within rounding, with and
+/// without a residual and PReLU.
+#[test]
+fn single_pixel_rows_give_the_same_bits() {
+    let mut rng = ChaCha8Rng::seed_from_u64(41);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    for case in 0..28 {
+        let ic = [16usize, 64, 128, 5][case % 4];
+        let oc = [1usize, 16, 64, 72, 80, 100, 200][case % 7];
+        let ih = if case % 3 == 0 { rng.random_range(3..6) } else { 2 };
+        let Some((g, input, filter, bias)) = random_conv(&mut rng, ih, 2, ic, oc, 2, 1, Padding::Valid) else {
+            continue;
+        };
+        assert_eq!(g.ow, 1);
+        let res = rnd(&mut rng, g.oh * oc);
+        let alpha = rnd(&mut rng, oc);
+        let packed = Packed::new(&filter, Some(&bias), oc, 4 * ic);
+        let mut scratch = vec![0.0; g.oh * 4 * ic];
+        let plain = Epilogue::act(Activation::None);
+        let fused = Epilogue {
+            act: Activation::None,
+            residual: Some(&res),
+            post: Post::Prelu(&alpha),
+        };
+        let conv = reference::conv(&input, &g, &filter, Some(&bias), oc, Activation::None);
+        for (e, ep) in [plain, fused].iter().enumerate() {
+            let want: Vec<f32> = if e == 0 {
+                conv.clone()
+            } else {
+                conv.iter()
+                    .zip(&res)
+                    .enumerate()
+                    .map(|(i, (&c, &r))| if c + r >= 0.0 { c + r } else { (c + r) * alpha[i % oc] })
+                    .collect()
+            };
+            let mut first: Option<Vec<u32>> = None;
+            for level in Level::all() {
+                let mut got = vec![0.0; g.oh * oc];
+                conv_window(level, &input, &g, &packed, ep, &mut scratch, &mut got);
+                let d = max_diff(&got, &want);
+                assert!(
+                    d < 1e-4,
+                    "case {case} {ih}x2x{ic} -> {oc}, epilogue {e}, {level:?}: max difference {d}"
+                );
+                match &first {
+                    None => first = Some(bits(&got)),
+                    Some(b) => assert!(
+                        *b == bits(&got),
+                        "case {case} {ih}x2x{ic} -> {oc}, epilogue {e}: {level:?} differs from the portable bits"
+                    ),
+                }
+            }
+        }
+    }
+}
+
 /// The 8-channel stride-1 3x3 depthwise layers, which AVX-512 runs two pixels to a
 /// register, give the portable bits at every width from 1 to 37 pixels (blocks of
 /// four pairs, a lone pair, an odd last pixel, borders) and both paddings.
@@ -463,6 +521,37 @@ fn max_pool_matches_plain_loop_on_random_shapes() {
         let mut got = vec![0.0; g.oh * g.ow * c];
         max_pool(&input, &g, Activation::Relu6, &mut got);
         assert_eq!(got, want, "case {case} {ih}x{iw}x{c} k{k}/{s}");
+    }
+}
+
+/// Channel-only padding (written in place, 8 floats at a time) and spatial padding
+/// against a plain per-element loop, on random shapes and pads.
+#[test]
+fn pad_matches_plain_loop_on_random_shapes() {
+    let mut rng = ChaCha8Rng::seed_from_u64(22);
+    for case in 0..48 {
+        let c = [1usize, 5, 8, 16, 24, 28, 42, 64][case % 8];
+        let (h, w) = (rng.random_range(1..6), rng.random_range(1..6));
+        let (before, after) = (rng.random_range(0..11), rng.random_range(0..11));
+        let spatial = if case % 3 == 0 {
+            [rng.random_range(0..2), rng.random_range(0..2)]
+        } else {
+            [0, 0]
+        };
+        let pads = [[0, 0], spatial, [0, spatial[1]], [before, after]];
+        let (oh, ow, oc) = (h + spatial[0] + spatial[1], w + spatial[1], c + before + after);
+        let input = rnd(&mut rng, h * w * c);
+        let mut want = vec![0.0f32; oh * ow * oc];
+        for y in 0..h {
+            for x in 0..w {
+                for ch in 0..c {
+                    want[((y + spatial[0]) * ow + x) * oc + before + ch] = input[(y * w + x) * c + ch];
+                }
+            }
+        }
+        let mut got = vec![f32::NAN; oh * ow * oc];
+        pad4(&input, [1, h, w, c], pads, &mut got);
+        assert_eq!(got, want, "case {case} {h}x{w}x{c} pads {pads:?}");
     }
 }
 
