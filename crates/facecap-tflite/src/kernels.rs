@@ -1571,8 +1571,8 @@ fn fill8(dst: &mut [f32], src: Option<&[f32]>) {
             for j in (0..n8).step_by(8) {
                 store8(dst, j, load8(s, j));
             }
-            for j in n8..dst.len() {
-                dst[j] = s[j];
+            for (d, &v) in dst[n8..].iter_mut().zip(&s[n8..]) {
+                *d = v;
             }
         }
         None => {
