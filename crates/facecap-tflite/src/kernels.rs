@@ -1526,10 +1526,7 @@ fn max_pool8(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
                 let mut acc = [f32::NEG_INFINITY; 8];
                 for &iy in &ty[..ny] {
                     for &ix in &tx[..nx] {
-                        let i = (iy * g.iw + ix) * c + cb;
-                        let mut x = [0.0f32; 8];
-                        x.copy_from_slice(&input[i..i + 8]);
-                        for (a, v) in acc.iter_mut().zip(x) {
+                        for (a, v) in acc.iter_mut().zip(load8(input, (iy * g.iw + ix) * c + cb)) {
                             *a = a.max(v);
                         }
                     }
@@ -1537,9 +1534,7 @@ fn max_pool8(input: &[f32], g: &Geom, act: Activation, out: &mut [f32]) {
                 for a in acc.iter_mut() {
                     *a = act.apply(*a);
                 }
-                if let Ok(dst) = <&mut [f32; 8]>::try_from(&mut out[o + cb..o + cb + 8]) {
-                    *dst = acc;
-                }
+                store8(out, o + cb, acc);
             }
         }
     }
